@@ -1,1 +1,3 @@
+pub mod engine;
+pub mod frame;
 pub mod geometry;

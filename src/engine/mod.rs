@@ -1,0 +1,541 @@
+//! The Fly Algorithm (Pauplin, Louchet, Lutton, Parent): a population of 3-D points evolved
+//! against a calibrated stereo pair.
+//!
+//! # Contract
+//! - Pure: takes [`StereoFrame`]s, returns a population. No device, thread, clock or I/O.
+//! - Deterministic: the same [`EngineParams`] (seed included), rig and frames give a bit-identical
+//!   population ([`Engine::population`]), generation after generation.
+//! - No allocation per generation: every buffer is sized in [`Engine::new`].
+//! - After every [`Engine::step`] the whole population is evaluated against the newest frame:
+//!   when a new pair arrives every fly, survivors included, is re-evaluated (a stored fitness goes
+//!   stale on video); otherwise only the offspring are.
+//!
+//! # One generation ([`Engine::step`])
+//! 1. **Selection** (elitist, deterministic): the best `survival_rate` of the flies by shared
+//!    fitness are kept, found in O(N) with a selection (not a sort).
+//! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
+//!    drawn uniformly (l ~ U[0,1]), then Gaussian mutation of each coordinate with probability
+//!    `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last `immigration_rate` of the
+//!    population are immigrants drawn like the initial flies.
+//! 3. **Evaluation** ([`fitness`]): `F = g_L g_R / (SSD + floor)` at the two projections.
+//! 4. **Road region of interest** (paper 5.1): outside it, F is multiplied by `roi.penalty`.
+//! 5. **Sharing** ([`sharing`]): F is divided by `n^sharing_exponent`, n being the number of flies
+//!    whose left projection falls in the same `sharing_cell_px` square: O(N) with a grid.
+//! 6. **Warnings**: `w = F / (max(|x|, 0.5)^2 * max(z, 1))` for every fly (F after ROI and
+//!    sharing, the value selection ranks by). The paper's global warning is their mean. Its scale
+//!    depends on image contrast and camera gain, so the engine also reports the *danger*
+//!    `sum(w) / sum(F)`: the fitness-weighted mean of `1 / (max(|x|,.5)^2 max(z,1))`, in m^-3,
+//!    which does not depend on contrast, gain or population size. Thresholds written in danger
+//!    carry over between scenes and cameras (4 = everything at 1 m dead ahead, 1 = at 4 m).
+//!
+//! Initial and immigrant flies are drawn uniformly over the left image and uniformly in inverse
+//! depth within `[min_depth, max_depth]` (uniform in disparity, the quantity stereo resolves
+//! uniformly), and kept only if both cameras see them: uniform inside the intersection of the
+//! two fields of view, in the projective measure of the stereo pair.
+
+mod fitness;
+mod params;
+mod projector;
+mod select;
+mod sharing;
+
+pub use params::{EngineParams, ParamError, RoadRoi};
+
+use crate::frame::StereoFrame;
+use crate::geometry::StereoRig;
+use fitness::Kernel;
+use projector::Projector;
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+
+/// Why an engine cannot be built or run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EngineError {
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    #[error("the depth range [{min}, {max}] m is not visible by both cameras")]
+    NoCommonView { min: f64, max: f64 },
+    #[error("the left camera's model cannot be inverted at the image border")]
+    NotInvertible,
+    #[error("frame {which} is {got_w}x{got_h} but the calibration expects {want_w}x{want_h}")]
+    FrameSize {
+        which: &'static str,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+}
+
+/// The flies, structure-of-arrays: the hot loops stream over one field at a time.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Population {
+    /// Vehicle-frame coordinates, metres.
+    pub x: Vec<f32>,
+    pub y: Vec<f32>,
+    pub z: Vec<f32>,
+    /// Fitness after the region of interest, before sharing.
+    pub raw_fitness: Vec<f32>,
+    /// Fitness after sharing: what selection ranks by.
+    pub fitness: Vec<f32>,
+    /// `fitness / (max(|x|,.5)^2 max(z,1))`.
+    pub warning: Vec<f32>,
+    /// Projections (continuous pixel coordinates); NaN when the fly is outside an image.
+    pub u_left: Vec<f32>,
+    pub v_left: Vec<f32>,
+    pub u_right: Vec<f32>,
+    pub v_right: Vec<f32>,
+    /// Sharing cell of the left projection, `u32::MAX` when outside.
+    cell: Vec<u32>,
+}
+
+impl Population {
+    fn with_len(n: usize) -> Self {
+        Self {
+            x: vec![0.0; n],
+            y: vec![0.0; n],
+            z: vec![0.0; n],
+            raw_fitness: vec![0.0; n],
+            fitness: vec![0.0; n],
+            warning: vec![0.0; n],
+            u_left: vec![f32::NAN; n],
+            v_left: vec![f32::NAN; n],
+            u_right: vec![f32::NAN; n],
+            v_right: vec![f32::NAN; n],
+            cell: vec![u32::MAX; n],
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Moves fly `from` into slot `to` (the state that survives a generation).
+    #[inline]
+    fn move_fly(&mut self, to: usize, from: usize) {
+        self.x[to] = self.x[from];
+        self.y[to] = self.y[from];
+        self.z[to] = self.z[from];
+        self.raw_fitness[to] = self.raw_fitness[from];
+        self.u_left[to] = self.u_left[from];
+        self.v_left[to] = self.v_left[from];
+        self.u_right[to] = self.u_right[from];
+        self.v_right[to] = self.v_right[from];
+        self.cell[to] = self.cell[from];
+    }
+
+    /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).
+    pub fn best(&self, k: usize) -> Vec<usize> {
+        let mut idx: Vec<usize> = (0..self.len()).collect();
+        idx.sort_by(|&a, &b| self.fitness[b].total_cmp(&self.fitness[a]).then(a.cmp(&b)));
+        idx.truncate(k);
+        idx
+    }
+}
+
+/// Figures of the latest generation.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct GenerationStats {
+    /// Generations run so far.
+    pub generation: u64,
+    /// Mean warning of the population (the paper's global warning).
+    pub global_warning: f64,
+    /// `sum(warning) / sum(fitness)`, m^-3: contrast-independent danger (see module docs).
+    pub danger: f64,
+    /// Flies evaluated in this generation.
+    pub evaluated: usize,
+    /// Flies whose projection falls inside both images.
+    pub visible: usize,
+    /// Whether this generation saw a new frame.
+    pub new_frame: bool,
+}
+
+/// Left-camera sampling domain for new flies.
+#[derive(Debug, Clone)]
+struct Sampler {
+    /// Undistorted normalised bounds of the left image.
+    xn: (f32, f32),
+    yn: (f32, f32),
+    /// Inverse depth range.
+    inv_depth: (f32, f32),
+    /// Vehicle from left camera: `p_vehicle = m * p_cam + c`.
+    m: [f32; 9],
+    c: [f32; 3],
+}
+
+/// Attempts to draw a fly visible in both images before giving up on that slot.
+const SAMPLE_ATTEMPTS: usize = 16;
+
+/// The evolving population and everything needed to run a generation without allocating.
+pub struct Engine {
+    params: EngineParams,
+    left: Projector,
+    right: Projector,
+    sampler: Sampler,
+    pop: Population,
+    selector: select::Selector,
+    /// Survivor flags of the current selection.
+    chosen: Vec<bool>,
+    sharing: sharing::Grid,
+    rng: Xoshiro256PlusPlus,
+    frame_size: (u32, u32, u32, u32),
+    /// Id of the frame the population was last evaluated against.
+    frame_id: Option<u64>,
+    /// Flies from this index on have not been evaluated since they were created.
+    unevaluated_from: usize,
+    stats: GenerationStats,
+}
+
+impl Engine {
+    /// A population of random flies over `rig`'s common field of view.
+    pub fn new(rig: &StereoRig, params: EngineParams) -> Result<Self, EngineError> {
+        params.validate()?;
+        let n = params.flies;
+        let sampler = Sampler::new(rig, &params)?;
+        let left = Projector::new(&rig.left);
+        let right = Projector::new(&rig.right);
+        let mut engine = Self {
+            sharing: sharing::Grid::new(
+                rig.left.width(),
+                rig.left.height(),
+                params.sharing_cell_px,
+                params.sharing_exponent,
+                n,
+            ),
+            rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
+            left,
+            right,
+            sampler,
+            pop: Population::with_len(n),
+            selector: select::Selector::new(n),
+            chosen: vec![false; n],
+            frame_size: (
+                rig.left.width(),
+                rig.left.height(),
+                rig.right.width(),
+                rig.right.height(),
+            ),
+            frame_id: None,
+            unevaluated_from: 0,
+            stats: GenerationStats::default(),
+            params,
+        };
+        let mut visible = 0;
+        for i in 0..n {
+            let (p, ok) = engine.sample_fly();
+            visible += ok as usize;
+            engine.pop.x[i] = p[0];
+            engine.pop.y[i] = p[1];
+            engine.pop.z[i] = p[2];
+        }
+        if visible == 0 {
+            return Err(EngineError::NoCommonView {
+                min: engine.params.min_depth,
+                max: engine.params.max_depth,
+            });
+        }
+        Ok(engine)
+    }
+
+    pub fn params(&self) -> &EngineParams {
+        &self.params
+    }
+
+    pub fn population(&self) -> &Population {
+        &self.pop
+    }
+
+    pub fn stats(&self) -> GenerationStats {
+        self.stats
+    }
+
+    /// Runs one generation against `frame` (see the module docs for the steps).
+    pub fn step(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
+        self.check_frame(frame)?;
+        if self.frame_id.is_some() {
+            self.reproduce();
+        }
+
+        let new_frame = self.frame_id != Some(frame.id);
+        if new_frame {
+            self.unevaluated_from = 0;
+            self.frame_id = Some(frame.id);
+        }
+        let from = self.unevaluated_from;
+        let kernel = Kernel::new(frame, &self.params);
+        kernel.evaluate(&self.left, &self.right, &mut self.pop, from, &self.sharing);
+        self.unevaluated_from = self.pop.len();
+        self.sharing.apply(&mut self.pop);
+        let (global_warning, danger, visible) = self.warnings();
+
+        self.stats = GenerationStats {
+            generation: self.stats.generation + 1,
+            global_warning,
+            danger,
+            evaluated: self.pop.len() - from,
+            visible,
+            new_frame,
+        };
+        Ok(self.stats)
+    }
+
+    fn check_frame(&self, frame: &StereoFrame) -> Result<(), EngineError> {
+        let (lw, lh, rw, rh) = self.frame_size;
+        for (which, img, w, h) in [
+            ("left", &frame.left, lw, lh),
+            ("right", &frame.right, rw, rh),
+        ] {
+            if img.width() != w || img.height() != h {
+                return Err(EngineError::FrameSize {
+                    which,
+                    got_w: img.width(),
+                    got_h: img.height(),
+                    want_w: w,
+                    want_h: h,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Warnings of every fly; returns (mean warning, danger, visible flies).
+    fn warnings(&mut self) -> (f64, f64, usize) {
+        let min_x = self.params.warning_min_abs_x as f32;
+        let min_z = self.params.warning_min_z as f32;
+        let p = &mut self.pop;
+        for (((w, &f), &x), &z) in p.warning.iter_mut().zip(&p.fitness).zip(&p.x).zip(&p.z) {
+            *w = warning(f, x, z, min_x, min_z);
+        }
+        // Sums in f32 blocks of 64 (exact enough: < 1e-5 relative), accumulated in f64.
+        let sum = |v: &[f32]| -> f64 {
+            v.chunks(64)
+                .map(|c| {
+                    let mut lanes = [0.0f32; 8];
+                    for (k, x) in c.iter().enumerate() {
+                        lanes[k % 8] += x;
+                    }
+                    lanes.iter().map(|&x| x as f64).sum::<f64>()
+                })
+                .sum()
+        };
+        let (sum_w, sum_f) = (sum(&p.warning), sum(&p.fitness));
+        let visible = p.cell.iter().filter(|&&c| c != u32::MAX).count();
+        let danger = if sum_f > 0.0 { sum_w / sum_f } else { 0.0 };
+        (sum_w / p.len() as f64, danger, visible)
+    }
+
+    /// Selection and genetic operators: survivors move to `0..keep` (in place), offspring fill
+    /// `keep..`, immigrants last.
+    fn reproduce(&mut self) {
+        let n = self.pop.len();
+        let keep = self.params.survivors();
+        let immigrants_from = n - self.params.immigrants();
+        self.selector
+            .select(&self.pop.fitness, keep, &mut self.chosen);
+        // Compact: each non-survivor slot below `keep` takes a survivor from above it. There are
+        // exactly as many of one as of the other. Survivors already below `keep` (the usual case
+        // for long-lived flies) do not move.
+        let mut src = keep;
+        for dst in 0..keep {
+            if self.chosen[dst] {
+                continue;
+            }
+            while src < n && !self.chosen[src] {
+                src += 1;
+            }
+            if src == n {
+                break;
+            }
+            self.pop.move_fly(dst, src);
+            src += 1;
+        }
+        // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
+        let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
+        let sigma = self.params.mutation_sigma as f32;
+        for i in keep..immigrants_from {
+            let r = self.rng.next_u64();
+            // Lemire's multiply-shift: unbiased to within keep / 2^32.
+            let a = (((r & 0xffff_ffff) * keep as u64) >> 32) as usize;
+            let b = (((r >> 32) * keep as u64) >> 32) as usize;
+            let pop = &self.pop;
+            let l = unit_f32(self.rng.next_u32());
+            let mut c = crossover(
+                [pop.x[a], pop.y[a], pop.z[a]],
+                [pop.x[b], pop.y[b], pop.z[b]],
+                l,
+            );
+            mutate(&mut c, &mut self.rng, threshold, sigma);
+            self.pop.x[i] = c[0];
+            self.pop.y[i] = c[1];
+            self.pop.z[i] = c[2];
+        }
+        self.immigrate(immigrants_from);
+        self.unevaluated_from = keep;
+    }
+
+    /// Replaces flies `from..` with new random flies. Candidates are drawn in bulk and checked
+    /// with the vectorised projection; only the few outside an image are drawn again one by one.
+    fn immigrate(&mut self, from: usize) {
+        for i in from..self.pop.len() {
+            let p = self.sampler.candidate(&mut self.rng);
+            self.pop.x[i] = p[0];
+            self.pop.y[i] = p[1];
+            self.pop.z[i] = p[2];
+        }
+        let pop = &mut self.pop;
+        self.left.project_batch(
+            &pop.x[from..],
+            &pop.y[from..],
+            &pop.z[from..],
+            &mut pop.u_left[from..],
+            &mut pop.v_left[from..],
+        );
+        self.right.project_batch(
+            &pop.x[from..],
+            &pop.y[from..],
+            &pop.z[from..],
+            &mut pop.u_right[from..],
+            &mut pop.v_right[from..],
+        );
+        for i in from..self.pop.len() {
+            if self.pop.u_left[i].is_nan() || self.pop.u_right[i].is_nan() {
+                let (p, _) = self.sample_fly();
+                self.pop.x[i] = p[0];
+                self.pop.y[i] = p[1];
+                self.pop.z[i] = p[2];
+            }
+        }
+    }
+
+    /// A new random fly (see the module docs); the flag says whether both cameras see it.
+    fn sample_fly(&mut self) -> ([f32; 3], bool) {
+        let mut p = [0.0; 3];
+        for _ in 0..SAMPLE_ATTEMPTS {
+            p = self.sampler.candidate(&mut self.rng);
+            if self.left.project(p[0], p[1], p[2]).is_some()
+                && self.right.project(p[0], p[1], p[2]).is_some()
+            {
+                return (p, true);
+            }
+        }
+        (p, false)
+    }
+}
+
+/// Barycentric crossover: `l * a + (1 - l) * b`.
+#[inline]
+pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
+    [
+        l * a[0] + (1.0 - l) * b[0],
+        l * a[1] + (1.0 - l) * b[1],
+        l * a[2] + (1.0 - l) * b[2],
+    ]
+}
+
+/// Gaussian mutation: each coordinate moves with probability `threshold / 65536` by
+/// N(0, (sigma * max(z, 1))^2). One 64-bit draw decides all three coordinates (16 bits each).
+#[inline]
+pub fn mutate<R: Rng>(c: &mut [f32; 3], rng: &mut R, threshold: u32, sigma: f32) {
+    let m = rng.next_u64();
+    let scale = sigma * c[2].max(1.0);
+    for (k, coord) in c.iter_mut().enumerate() {
+        if ((m >> (16 * k)) & 0xffff) < threshold as u64 {
+            let g: f32 = StandardNormal.sample(rng);
+            *coord += scale * g;
+        }
+    }
+}
+
+/// The paper's warning of one fly, with its clamps.
+#[inline]
+pub fn warning(fitness: f32, x: f32, z: f32, min_abs_x: f32, min_z: f32) -> f32 {
+    let ax = x.abs().max(min_abs_x);
+    fitness / (ax * ax * z.max(min_z))
+}
+
+/// A uniform f32 in [0, 1) from 24 random bits.
+#[inline]
+fn unit_f32(bits: u32) -> f32 {
+    (bits >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+#[inline]
+fn lerp((a, b): (f32, f32), t: f32) -> f32 {
+    a + (b - a) * t
+}
+
+impl Sampler {
+    /// A point uniform over the left image's normalised bounds and uniform in inverse depth
+    /// (possibly outside one of the images: callers check).
+    #[inline]
+    fn candidate<R: Rng>(&self, rng: &mut R) -> [f32; 3] {
+        let r = rng.next_u64();
+        let xn = lerp(self.xn, unit_f32(r as u32));
+        let yn = lerp(self.yn, unit_f32((r >> 32) as u32));
+        let d = 1.0 / lerp(self.inv_depth, unit_f32(rng.next_u32()));
+        let cam = [xn * d, yn * d, d];
+        let m = &self.m;
+        [
+            m[0] * cam[0] + m[1] * cam[1] + m[2] * cam[2] + self.c[0],
+            m[3] * cam[0] + m[4] * cam[1] + m[5] * cam[2] + self.c[1],
+            m[6] * cam[0] + m[7] * cam[1] + m[8] * cam[2] + self.c[2],
+        ]
+    }
+
+    fn new(rig: &StereoRig, params: &EngineParams) -> Result<Self, EngineError> {
+        let cam = &rig.left;
+        let (w, h) = (cam.width() as f64, cam.height() as f64);
+        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        // The undistorted image of the border bounds the left field of view.
+        let steps = 64;
+        for i in 0..=steps {
+            let t = i as f64 / steps as f64;
+            for (u, v) in [
+                (t * (w - 1.0), 0.0),
+                (t * (w - 1.0), h - 1.0),
+                (0.0, t * (h - 1.0)),
+                (w - 1.0, t * (h - 1.0)),
+            ] {
+                let (xn, yn) = cam
+                    .normalised_from_pixel(u, v)
+                    .ok_or(EngineError::NotInvertible)?;
+                x0 = x0.min(xn);
+                x1 = x1.max(xn);
+                y0 = y0.min(yn);
+                y1 = y1.max(yn);
+            }
+        }
+        let origin = cam.vehicle_from_camera(&nalgebra::Point3::origin());
+        let ex = cam.vehicle_from_camera(&nalgebra::Point3::new(1.0, 0.0, 0.0)) - origin;
+        let ey = cam.vehicle_from_camera(&nalgebra::Point3::new(0.0, 1.0, 0.0)) - origin;
+        let ez = cam.vehicle_from_camera(&nalgebra::Point3::new(0.0, 0.0, 1.0)) - origin;
+        Ok(Self {
+            xn: (x0 as f32, x1 as f32),
+            yn: (y0 as f32, y1 as f32),
+            inv_depth: (
+                (1.0 / params.max_depth) as f32,
+                (1.0 / params.min_depth) as f32,
+            ),
+            m: [
+                ex.x as f32,
+                ey.x as f32,
+                ez.x as f32,
+                ex.y as f32,
+                ey.y as f32,
+                ez.y as f32,
+                ex.z as f32,
+                ey.z as f32,
+                ez.z as f32,
+            ],
+            c: [origin.x as f32, origin.y as f32, origin.z as f32],
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,242 @@
+//! Tunable parameters of the evolution, with the defaults chosen by measurement (see README).
+
+use serde::{Deserialize, Serialize};
+
+/// The road region of interest of the paper (section 5.1): flies that cannot be obstacles for the
+/// vehicle have their fitness multiplied by `penalty`, so selection removes them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RoadRoi {
+    /// Flies higher than this above the road (metres) are penalised (paper: 2 m).
+    pub max_height: f64,
+    /// Flies lower than this above the road (metres) are penalised: the road itself (paper: 0.1 m).
+    pub min_height: f64,
+    /// Flies farther ahead than this (metres, vehicle z) are penalised (paper: 16 m).
+    pub max_ahead: f64,
+    /// Fitness multiplier outside the region, in [0, 1]. 0 makes such flies the worst.
+    pub penalty: f64,
+}
+
+impl Default for RoadRoi {
+    fn default() -> Self {
+        Self {
+            max_height: 2.0,
+            min_height: 0.1,
+            max_ahead: 16.0,
+            penalty: 0.0,
+        }
+    }
+}
+
+/// Parameters of one fly population. All rates are fractions of the population.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EngineParams {
+    /// Population size.
+    pub flies: usize,
+    /// Fraction of the population kept by elitist selection (paper: ~40 %).
+    pub survival_rate: f64,
+    /// Fraction of the population replaced by fresh random flies every generation.
+    pub immigration_rate: f64,
+    /// Probability that each coordinate of an offspring is mutated (paper: 40 %).
+    pub mutation_rate: f64,
+    /// Standard deviation of the Gaussian mutation, relative to the fly's depth: a fly at z metres
+    /// moves by N(0, (sigma * max(z, 1 m))^2) on each mutated coordinate. Scaling with depth keeps
+    /// the step constant in pixels and in disparity.
+    pub mutation_sigma: f64,
+    /// Radius of the square neighbourhood N compared by the fitness (1..=3: 3x3 to 7x7 pixels).
+    pub neighbourhood_radius: u32,
+    /// Added to the fitness denominator per compared sample (pixels x channels): guards against
+    /// division by zero and keeps a perfectly flat match from dominating. Grey levels squared.
+    pub ssd_floor: f64,
+    /// Side, in left-image pixels, of the cells of the sharing grid.
+    pub sharing_cell_px: u32,
+    /// Sharing exponent: a fly's fitness is divided by (flies in its cell)^exponent. 0 disables.
+    pub sharing_exponent: f64,
+    /// Search range: depth along the left camera's optical axis, metres.
+    pub min_depth: f64,
+    pub max_depth: f64,
+    /// Road region of interest; `None` for scenes without a road (datasets).
+    pub roi: Option<RoadRoi>,
+    /// Warning clamps of the paper: |x| below this counts as this (metres).
+    pub warning_min_abs_x: f64,
+    /// Warning clamps of the paper: z below this counts as this (metres).
+    pub warning_min_z: f64,
+    /// Seed of the random generator: same seed + same frames = bit-identical population.
+    pub seed: u64,
+}
+
+impl Default for EngineParams {
+    fn default() -> Self {
+        Self {
+            flies: 5000,
+            survival_rate: 0.4,
+            immigration_rate: 0.1,
+            mutation_rate: 0.4,
+            mutation_sigma: 0.01,
+            neighbourhood_radius: 1,
+            ssd_floor: 1.0,
+            sharing_cell_px: 8,
+            sharing_exponent: 1.0,
+            min_depth: 1.0,
+            max_depth: 25.0,
+            roi: Some(RoadRoi::default()),
+            warning_min_abs_x: 0.5,
+            warning_min_z: 1.0,
+            seed: 1,
+        }
+    }
+}
+
+/// A parameter that cannot work, named as in the configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("engine parameter '{key}': {reason}")]
+pub struct ParamError {
+    pub key: &'static str,
+    pub reason: String,
+}
+
+impl EngineParams {
+    /// Checks every parameter; the error names the offending key.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let err = |key: &'static str, reason: String| Err(ParamError { key, reason });
+        let unit = |key: &'static str, v: f64| {
+            if (0.0..=1.0).contains(&v) {
+                Ok(())
+            } else {
+                err(key, format!("must be within [0, 1], got {v}"))
+            }
+        };
+        if !(16..=1_000_000).contains(&self.flies) {
+            return err(
+                "flies",
+                format!("must be within 16..=1000000, got {}", self.flies),
+            );
+        }
+        unit("survival_rate", self.survival_rate)?;
+        unit("immigration_rate", self.immigration_rate)?;
+        unit("mutation_rate", self.mutation_rate)?;
+        let keep = self.survivors();
+        if keep < 2 {
+            return err("survival_rate", "must keep at least 2 flies".into());
+        }
+        if keep + self.immigrants() > self.flies {
+            return err(
+                "immigration_rate",
+                format!(
+                    "survival_rate + immigration_rate must not exceed 1 (got {} + {})",
+                    self.survival_rate, self.immigration_rate
+                ),
+            );
+        }
+        if !(self.mutation_sigma.is_finite() && self.mutation_sigma >= 0.0) {
+            return err(
+                "mutation_sigma",
+                format!("must be >= 0, got {}", self.mutation_sigma),
+            );
+        }
+        if !(1..=3).contains(&self.neighbourhood_radius) {
+            return err(
+                "neighbourhood_radius",
+                format!("must be 1, 2 or 3, got {}", self.neighbourhood_radius),
+            );
+        }
+        if !(self.ssd_floor.is_finite() && self.ssd_floor > 0.0) {
+            return err("ssd_floor", format!("must be > 0, got {}", self.ssd_floor));
+        }
+        if !(2..=256).contains(&self.sharing_cell_px) {
+            return err(
+                "sharing_cell_px",
+                format!("must be within 2..=256, got {}", self.sharing_cell_px),
+            );
+        }
+        if !(self.sharing_exponent.is_finite() && (0.0..=4.0).contains(&self.sharing_exponent)) {
+            return err(
+                "sharing_exponent",
+                format!("must be within [0, 4], got {}", self.sharing_exponent),
+            );
+        }
+        if !(self.min_depth.is_finite() && self.min_depth > 0.0) {
+            return err("min_depth", format!("must be > 0, got {}", self.min_depth));
+        }
+        if !(self.max_depth.is_finite() && self.max_depth > self.min_depth) {
+            return err(
+                "max_depth",
+                format!(
+                    "must be greater than min_depth ({}), got {}",
+                    self.min_depth, self.max_depth
+                ),
+            );
+        }
+        if let Some(roi) = &self.roi {
+            if !(roi.max_height.is_finite() && roi.max_height > roi.min_height) {
+                return err(
+                    "roi.max_height",
+                    format!("must be greater than roi.min_height ({})", roi.min_height),
+                );
+            }
+            if !(roi.max_ahead.is_finite() && roi.max_ahead > 0.0) {
+                return err(
+                    "roi.max_ahead",
+                    format!("must be > 0, got {}", roi.max_ahead),
+                );
+            }
+            unit("roi.penalty", roi.penalty)?;
+        }
+        if !(self.warning_min_abs_x.is_finite() && self.warning_min_abs_x > 0.0) {
+            return err("warning_min_abs_x", "must be > 0".into());
+        }
+        if !(self.warning_min_z.is_finite() && self.warning_min_z > 0.0) {
+            return err("warning_min_z", "must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// Number of flies kept by selection.
+    pub fn survivors(&self) -> usize {
+        ((self.flies as f64 * self.survival_rate).round() as usize).min(self.flies)
+    }
+
+    /// Number of immigrants per generation.
+    pub fn immigrants(&self) -> usize {
+        (self.flies as f64 * self.immigration_rate).round() as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check(change: impl FnOnce(&mut EngineParams), key: &str) {
+        let mut p = EngineParams::default();
+        change(&mut p);
+        let e = p.validate().expect_err("should be rejected");
+        assert_eq!(e.key, key, "{e}");
+    }
+
+    #[test]
+    fn defaults_are_valid() {
+        EngineParams::default().validate().expect("defaults");
+    }
+
+    #[test]
+    fn impossible_values_name_their_key() {
+        check(|p| p.min_depth = 30.0, "max_depth");
+        check(|p| p.min_depth = -1.0, "min_depth");
+        check(|p| p.survival_rate = 1.5, "survival_rate");
+        check(|p| p.immigration_rate = 0.7, "immigration_rate");
+        check(|p| p.neighbourhood_radius = 4, "neighbourhood_radius");
+        check(|p| p.mutation_sigma = f64::NAN, "mutation_sigma");
+        check(|p| p.flies = 3, "flies");
+        check(|p| p.ssd_floor = 0.0, "ssd_floor");
+        check(
+            |p| {
+                p.roi = Some(RoadRoi {
+                    min_height: 3.0,
+                    ..RoadRoi::default()
+                })
+            },
+            "roi.max_height",
+        );
+    }
+}

@@ -1,0 +1,126 @@
+//! Elitist, deterministic selection in O(N): which flies are the `keep` fittest.
+//!
+//! A sort costs O(N log N) and a comparison-based selection chases an index array through the
+//! fitness array. Non-negative f32 compare like their bit patterns as integers, so a radix pass
+//! finds the histogram bin that holds the boundary; only the flies of that one bin need an exact
+//! selection. Ties at the boundary go to the lower index, so the result depends only on the
+//! fitness values, never on an earlier permutation.
+
+/// Bins of the radix pass: the top 11 bits below the sign (exponent and 3 mantissa bits).
+const BINS: usize = 2048;
+const SHIFT: u32 = 20;
+
+#[derive(Debug, Clone)]
+pub(crate) struct Selector {
+    hist: Vec<u32>,
+    boundary: Vec<u64>,
+}
+
+/// Radix key of a fitness: NaN and non-positive values rank as zero.
+#[inline]
+fn key(f: f32) -> u32 {
+    if f > 0.0 { f.to_bits() } else { 0 }
+}
+
+impl Selector {
+    pub(crate) fn new(flies: usize) -> Self {
+        Self {
+            hist: vec![0; BINS],
+            boundary: Vec::with_capacity(flies),
+        }
+    }
+
+    /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.
+    pub(crate) fn select(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+        let n = fitness.len().min(chosen.len());
+        let keep = keep.min(n);
+        self.hist.fill(0);
+        for &f in &fitness[..n] {
+            self.hist[(key(f) >> SHIFT) as usize] += 1;
+        }
+        // The bin holding the keep-th best, and how many flies rank strictly above it.
+        let (mut bin, mut above) = (BINS - 1, 0usize);
+        loop {
+            let c = self.hist[bin] as usize;
+            if above + c >= keep || bin == 0 {
+                break;
+            }
+            above += c;
+            bin -= 1;
+        }
+        self.boundary.clear();
+        for i in 0..n {
+            let k = key(fitness[i]);
+            let b = (k >> SHIFT) as usize;
+            chosen[i] = b > bin;
+            if b == bin {
+                // Larger key = better: fitness first, then the lower index.
+                self.boundary
+                    .push(((k as u64) << 32) | (!(i as u32)) as u64);
+            }
+        }
+        let need = keep - above;
+        let m = self.boundary.len();
+        if need < m {
+            if need > 0 {
+                self.boundary.select_nth_unstable(m - need);
+            }
+            for &k in &self.boundary[m - need..] {
+                chosen[!(k as u32) as usize] = true;
+            }
+        } else {
+            for &k in &self.boundary {
+                chosen[!(k as u32) as usize] = true;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Reference: a full sort, ties to the lower index.
+    fn reference(fitness: &[f32], keep: usize) -> Vec<bool> {
+        let mut idx: Vec<usize> = (0..fitness.len()).collect();
+        idx.sort_by(|&a, &b| key(fitness[b]).cmp(&key(fitness[a])).then(a.cmp(&b)));
+        let mut chosen = vec![false; fitness.len()];
+        for &i in &idx[..keep] {
+            chosen[i] = true;
+        }
+        chosen
+    }
+
+    fn check(fitness: &[f32], keep: usize) {
+        let mut chosen = vec![false; fitness.len()];
+        Selector::new(fitness.len()).select(fitness, keep, &mut chosen);
+        assert_eq!(chosen, reference(fitness, keep), "{fitness:?} keep {keep}");
+        assert_eq!(chosen.iter().filter(|&&c| c).count(), keep);
+    }
+
+    #[test]
+    fn matches_a_full_sort() {
+        check(&[3.0, 1.0, 2.0, 5.0, 4.0], 2);
+        check(&[0.0, 0.0, 0.0, 1.0], 2); // ties at zero go to the lower index
+        check(&[1.0, 1.0, 1.0, 1.0], 3);
+        check(&[f32::NAN, -1.0, 2.0, 0.5], 2); // NaN and negatives rank as zero
+        check(&[7.0; 10], 0);
+        check(&[7.0; 10], 10);
+        // Values sharing a radix bin (same exponent, close mantissas).
+        check(&[1.0, 1.0001, 1.0002, 1.00005, 0.999, 1.0003], 3);
+        let mut x = 0x1234_5678u32;
+        let many: Vec<f32> = (0..5000)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                if x % 7 == 0 {
+                    0.0
+                } else {
+                    (x % 100_000) as f32 * 1e-3
+                }
+            })
+            .collect();
+        check(&many, 2000);
+    }
+}

@@ -1,0 +1,142 @@
+//! Sharing (fitness sharing over a grid of the left image), O(N).
+//!
+//! The paper lowers the fitness of flies packed together so the population spreads over every
+//! object instead of piling onto the single best match. Classic sharing compares every pair of
+//! individuals (O(N^2)); here the niche of a fly is the square cell of `cell_px` x `cell_px`
+//! pixels its left projection falls in, and
+//!
+//! `F_shared = F_raw / n^alpha`, n = number of flies in that cell, alpha = `sharing_exponent`.
+//!
+//! With alpha = 1 (default) a cell's flies share its fitness: a cell holding ten copies of one
+//! match is worth as much as one fly there, so selection favours covering new cells. Cells are
+//! counted in the image, not in 3-D: flies on one left pixel at different depths compete, which
+//! is right for opaque surfaces (one depth per pixel is true).
+//!
+//! Two passes over the flies plus clearing the counts: no allocation.
+
+use super::Population;
+
+#[derive(Debug, Clone)]
+pub(crate) struct Grid {
+    cell_px: f32,
+    cols: u32,
+    counts: Vec<u32>,
+    /// `1 / n^alpha` for n = 0..=flies (n = 0 unused).
+    factor: Vec<f32>,
+}
+
+impl Grid {
+    pub(crate) fn new(width: u32, height: u32, cell_px: u32, alpha: f64, flies: usize) -> Self {
+        let cols = width.div_ceil(cell_px);
+        let rows = height.div_ceil(cell_px);
+        let factor = (0..=flies)
+            .map(|n| {
+                if n == 0 {
+                    1.0
+                } else {
+                    (1.0 / (n as f64).powf(alpha)) as f32
+                }
+            })
+            .collect();
+        Self {
+            cell_px: cell_px as f32,
+            cols,
+            counts: vec![0; (cols * rows) as usize],
+            factor,
+        }
+    }
+
+    /// Sharing cell of a left-image position (inside the image).
+    #[inline(always)]
+    pub(crate) fn cell(&self, u: f32, v: f32) -> u32 {
+        // u, v >= -0.5: shift to pixel-edge coordinates before binning.
+        let inv = 1.0 / self.cell_px;
+        let cx = ((u + 0.5) * inv) as u32;
+        let cy = ((v + 0.5) * inv) as u32;
+        (cy * self.cols + cx).min(self.counts.len() as u32 - 1)
+    }
+
+    /// Sets `fitness` from `raw_fitness` and the cells the evaluation assigned (`u32::MAX` for a
+    /// fly outside an image: fitness 0).
+    pub(crate) fn apply(&mut self, pop: &mut Population) {
+        self.counts.fill(0);
+        for &cell in &pop.cell {
+            if let Some(c) = self.counts.get_mut(cell as usize) {
+                *c += 1;
+            }
+        }
+        let last = self.factor.len() - 1;
+        for ((f, &raw), &cell) in pop.fitness.iter_mut().zip(&pop.raw_fitness).zip(&pop.cell) {
+            let factor = match self.counts.get(cell as usize) {
+                Some(&n) => self.factor[(n as usize).min(last)],
+                None => 0.0,
+            };
+            *f = raw * factor;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pop(points: &[(f32, f32, f32)]) -> Population {
+        let mut p = Population::with_len(points.len());
+        for (i, &(u, v, f)) in points.iter().enumerate() {
+            p.u_left[i] = u;
+            p.v_left[i] = v;
+            p.raw_fitness[i] = f;
+        }
+        p
+    }
+
+    fn apply(g: &mut Grid, p: &mut Population) {
+        for i in 0..p.len() {
+            p.cell[i] = if p.u_left[i].is_nan() {
+                u32::MAX
+            } else {
+                g.cell(p.u_left[i], p.v_left[i])
+            };
+        }
+        g.apply(p);
+    }
+
+    #[test]
+    fn packed_flies_share_their_cell() {
+        // Three flies in cell (0,0), one alone in cell (1,0), one outside the image.
+        let mut p = pop(&[
+            (1.0, 1.0, 9.0),
+            (2.0, 3.0, 9.0),
+            (7.0, 7.0, 9.0),
+            (8.0, 0.0, 9.0),
+            (f32::NAN, f32::NAN, 9.0),
+        ]);
+        let mut g = Grid::new(64, 64, 8, 1.0, 5);
+        apply(&mut g, &mut p);
+        assert_eq!(p.fitness, vec![3.0, 3.0, 3.0, 9.0, 0.0]);
+        assert_eq!(p.cell[..4], [0, 0, 0, 1]);
+    }
+
+    #[test]
+    fn exponent_zero_disables_sharing() {
+        let mut p = pop(&[(1.0, 1.0, 2.0), (1.0, 1.0, 5.0)]);
+        apply(&mut Grid::new(64, 64, 8, 0.0, 2), &mut p);
+        assert_eq!(p.fitness, vec![2.0, 5.0]);
+    }
+
+    #[test]
+    fn half_exponent() {
+        let mut p = pop(&[(1.0, 1.0, 8.0); 4]);
+        apply(&mut Grid::new(64, 64, 8, 0.5, 4), &mut p);
+        assert_eq!(p.fitness, vec![4.0; 4]);
+    }
+
+    #[test]
+    fn border_pixels_stay_in_the_grid() {
+        // 60 px wide with 8 px cells: 8 columns, the last one partial.
+        let mut p = pop(&[(59.4, 59.4, 1.0), (-0.5, -0.5, 1.0)]);
+        let mut g = Grid::new(60, 60, 8, 1.0, 2);
+        apply(&mut g, &mut p);
+        assert_eq!(p.cell[..2], [7 * 8 + 7, 0]);
+    }
+}

@@ -1,0 +1,394 @@
+//! Engine tests on an analytic scene: a textured wall facing the cameras.
+
+use super::*;
+use crate::frame::{PixelFormat, PreparedImage};
+use crate::geometry::{Camera, Distortion, Intrinsics, rotation_from_angles};
+use nalgebra::Point3;
+
+fn rig() -> StereoRig {
+    let cam = |x: f64| {
+        Camera::new(
+            160,
+            120,
+            Intrinsics {
+                fx: 130.0,
+                fy: 130.0,
+                cx: 79.5,
+                cy: 59.5,
+            },
+            Distortion {
+                k1: -0.05,
+                k2: 0.01,
+                ..Distortion::default()
+            },
+            rotation_from_angles(0.0, 0.0, 0.0),
+            Point3::new(x, 1.0, 0.0),
+        )
+        .expect("camera")
+    };
+    StereoRig {
+        left: cam(-0.15),
+        right: cam(0.15),
+    }
+}
+
+fn hash(ix: i64, iy: i64, seed: u64) -> f64 {
+    let mut h = (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ seed.wrapping_mul(0x1656_67B1_9E37_79F9);
+    h ^= h >> 31;
+    h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    h ^= h >> 29;
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// Bilinear value noise with cells of `cell` metres.
+fn texture(x: f64, y: f64, cell: f64, seed: u64) -> f64 {
+    let (fx, fy) = (x / cell, y / cell);
+    let (ix, iy) = (fx.floor(), fy.floor());
+    let (tx, ty) = (fx - ix, fy - iy);
+    let (ix, iy) = (ix as i64, iy as i64);
+    let a = hash(ix, iy, seed) * (1.0 - tx) + hash(ix + 1, iy, seed) * tx;
+    let b = hash(ix, iy + 1, seed) * (1.0 - tx) + hash(ix + 1, iy + 1, seed) * tx;
+    a * (1.0 - ty) + b * ty
+}
+
+/// RGB image of a textured wall at `depth` metres (plane z = depth) seen by `cam`.
+fn render_wall(cam: &Camera, depth: f64, seed: u64) -> Vec<u8> {
+    let (w, h) = (cam.width(), cam.height());
+    let mut out = Vec::with_capacity((w * h * 3) as usize);
+    for v in 0..h {
+        for u in 0..w {
+            let (o, d) = cam.ray_from_pixel(u as f64, v as f64).expect("ray");
+            let t = (depth - o.z) / d.z;
+            let p = o + d * t;
+            let base =
+                texture(p.x, p.y, 0.03, seed) * 0.6 + texture(p.x, p.y, 0.11, seed + 1) * 0.4;
+            for c in 0..3 {
+                let tint = [1.0, 0.8, 0.6][c];
+                out.push((base * 255.0 * tint).round().clamp(0.0, 255.0) as u8);
+            }
+        }
+    }
+    out
+}
+
+fn wall_frame(rig: &StereoRig, depth: f64, seed: u64, id: u64) -> StereoFrame {
+    let prep = |cam: &Camera| {
+        PreparedImage::from_pixels(
+            cam.width(),
+            cam.height(),
+            PixelFormat::Rgb8,
+            &render_wall(cam, depth, seed),
+        )
+        .expect("frame")
+    };
+    StereoFrame::new(prep(&rig.left), prep(&rig.right), id)
+}
+
+fn params(flies: usize, seed: u64) -> EngineParams {
+    EngineParams {
+        flies,
+        seed,
+        min_depth: 1.0,
+        max_depth: 20.0,
+        roi: None,
+        ..EngineParams::default()
+    }
+}
+
+#[test]
+fn same_seed_same_frames_bit_identical_population() {
+    let rig = rig();
+    let frames = [wall_frame(&rig, 4.0, 7, 1), wall_frame(&rig, 3.0, 8, 2)];
+    let run = |seed| {
+        let mut e = Engine::new(&rig, params(800, seed)).expect("engine");
+        for g in 0..30 {
+            e.step(&frames[g / 15]).expect("step");
+        }
+        e.population().clone()
+    };
+    let (a, b, c) = (run(42), run(42), run(43));
+    let bits = |p: &Population| -> Vec<u32> {
+        [
+            &p.x, &p.y, &p.z, &p.fitness, &p.warning, &p.u_left, &p.v_right,
+        ]
+        .iter()
+        .flat_map(|v| v.iter().map(|f| f.to_bits()))
+        .collect()
+    };
+    assert_eq!(
+        bits(&a),
+        bits(&b),
+        "same seed must give the same population"
+    );
+    assert_ne!(
+        bits(&a),
+        bits(&c),
+        "another seed must give another population"
+    );
+}
+
+#[test]
+fn flies_converge_onto_the_wall() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 5.0, 3, 1);
+    let mut e = Engine::new(&rig, params(2000, 1)).expect("engine");
+    for _ in 0..40 {
+        e.step(&frame).expect("step");
+    }
+    let p = e.population();
+    let best = p.best(200);
+    // At 5 m this rig's disparity is f B / z = 130 * 0.3 / 5 = 7.8 px: one pixel of disparity
+    // is z^2 / (f B) = 0.64 m of depth. Count flies within one pixel of the wall.
+    let on_wall = best.iter().filter(|&&i| (p.z[i] - 5.0).abs() < 0.6).count();
+    assert!(
+        on_wall >= 180,
+        "{on_wall} of the 200 best flies are on the wall"
+    );
+}
+
+#[test]
+fn new_frame_reevaluates_every_fly() {
+    let rig = rig();
+    let a = wall_frame(&rig, 5.0, 3, 1);
+    let b = wall_frame(&rig, 2.5, 9, 2);
+    let mut e = Engine::new(&rig, params(500, 1)).expect("engine");
+    for _ in 0..10 {
+        let s = e.step(&a).expect("step");
+        assert!(s.generation == 1 || !s.new_frame);
+    }
+    let keep = e.params().survivors();
+    let s = e.step(&a).expect("step");
+    assert_eq!(
+        s.evaluated,
+        500 - keep,
+        "same frame: only offspring evaluated"
+    );
+    let s = e.step(&b).expect("step");
+    assert!(s.new_frame);
+    assert_eq!(s.evaluated, 500, "new frame: survivors re-evaluated too");
+    // The stored fitness is the one a fresh engine computes on frame b for the same flies.
+    let kernel = Kernel::new(&b, e.params());
+    let mut fresh = e.population().clone();
+    kernel.evaluate(&e.left, &e.right, &mut fresh, 0, &e.sharing);
+    assert_eq!(fresh.raw_fitness, e.population().raw_fitness);
+}
+
+#[test]
+fn selection_is_elitist() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 4.0, 5, 1);
+    let mut e = Engine::new(&rig, params(300, 2)).expect("engine");
+    for _ in 0..5 {
+        e.step(&frame).expect("step");
+    }
+    let before = e.population().clone();
+    let keep = e.params().survivors();
+    let mut best = before.best(keep);
+    e.step(&frame).expect("step");
+    let after = e.population();
+    let mut kept: Vec<usize> = (0..keep)
+        .map(|i| {
+            (0..before.len())
+                .find(|&j| {
+                    before.x[j] == after.x[i]
+                        && before.y[j] == after.y[i]
+                        && before.z[j] == after.z[i]
+                })
+                .expect("every survivor comes from the previous population")
+        })
+        .collect();
+    best.sort_unstable();
+    kept.sort_unstable();
+    // Same fitness values as the best `keep` (ties may swap equal-fitness flies).
+    let fit = |v: &[usize]| {
+        v.iter()
+            .map(|&i| before.fitness[i].to_bits())
+            .collect::<Vec<_>>()
+    };
+    let (mut fb, mut fk) = (fit(&best), fit(&kept));
+    fb.sort_unstable();
+    fk.sort_unstable();
+    assert_eq!(fb, fk);
+}
+
+#[test]
+fn offspring_without_mutation_lie_between_two_survivors() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 4.0, 5, 1);
+    let p = EngineParams {
+        mutation_rate: 0.0,
+        immigration_rate: 0.0,
+        ..params(60, 3)
+    };
+    let mut e = Engine::new(&rig, p).expect("engine");
+    e.step(&frame).expect("step");
+    e.step(&frame).expect("step");
+    let pop = e.population();
+    let keep = e.params().survivors();
+    let pt = |i: usize| nalgebra::Vector3::new(pop.x[i], pop.y[i], pop.z[i]);
+    for c in keep..pop.len() {
+        let found = (0..keep).any(|a| {
+            (0..keep).any(|b| {
+                let (pa, pb, pc) = (pt(a), pt(b), pt(c));
+                let ab = pb - pa;
+                let t = if ab.norm() < 1e-6 {
+                    0.0
+                } else {
+                    (pc - pa).dot(&ab) / ab.norm_squared()
+                };
+                (-1e-4..=1.0001).contains(&t) && (pa + ab * t - pc).norm() < 1e-4
+            })
+        });
+        assert!(
+            found,
+            "offspring {c} is not on a segment between two survivors"
+        );
+    }
+}
+
+#[test]
+fn mutation_rate_and_scale() {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let threshold = (0.4f64 * 65536.0).round() as u32;
+    let (mut moved, mut sq, trials) = (0usize, 0.0f64, 20000);
+    for _ in 0..trials {
+        let mut c = [0.0, 0.0, 5.0];
+        mutate(&mut c, &mut rng, threshold, 0.02);
+        for (k, v) in c.iter().enumerate() {
+            let d = v - [0.0, 0.0, 5.0][k];
+            if d != 0.0 {
+                moved += 1;
+                sq += (d as f64).powi(2);
+            }
+        }
+    }
+    let rate = moved as f64 / (3 * trials) as f64;
+    assert!((rate - 0.4).abs() < 0.01, "mutation rate {rate}");
+    let sigma = (sq / moved as f64).sqrt();
+    assert!((sigma - 0.1).abs() < 0.005, "sigma {sigma} for 0.02 * 5 m");
+    let mut c = [1.0, 2.0, 3.0];
+    mutate(&mut c, &mut rng, 0, 0.02);
+    assert_eq!(c, [1.0, 2.0, 3.0], "rate 0 never mutates");
+}
+
+#[test]
+fn crossover_is_barycentric() {
+    let (a, b) = ([0.0, 2.0, 4.0], [2.0, 0.0, 8.0]);
+    assert_eq!(crossover(a, b, 1.0), a);
+    assert_eq!(crossover(a, b, 0.0), b);
+    assert_eq!(crossover(a, b, 0.25), [1.5, 0.5, 7.0]);
+}
+
+#[test]
+fn new_flies_are_seen_by_both_cameras_within_the_depth_range() {
+    let rig = rig();
+    let e = Engine::new(&rig, params(3000, 4)).expect("engine");
+    let p = e.population();
+    let mut visible = 0;
+    for i in 0..p.len() {
+        let pt = Point3::new(p.x[i] as f64, p.y[i] as f64, p.z[i] as f64);
+        let l = rig.left.pixel_from_vehicle(&pt);
+        let r = rig.right.pixel_from_vehicle(&pt);
+        if l.is_some_and(|l| rig.left.contains(&l)) && r.is_some_and(|r| rig.right.contains(&r)) {
+            visible += 1;
+        }
+        assert!((0.99..=20.01).contains(&p.z[i]), "depth {}", p.z[i]);
+    }
+    assert!(visible >= p.len() - 2, "{visible} visible");
+}
+
+#[test]
+fn flies_outside_an_image_get_the_worst_fitness() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 4.0, 5, 1);
+    let mut e = Engine::new(&rig, params(100, 5)).expect("engine");
+    e.pop.x[0] = 50.0; // far to the right of both images
+    e.pop.z[1] = -3.0; // behind the cameras
+    e.step(&frame).expect("step");
+    let p = e.population();
+    // Indexes are stable in the first generation (no reproduction yet).
+    for i in [0, 1] {
+        assert_eq!(p.fitness[i], 0.0);
+        assert_eq!(p.warning[i], 0.0);
+        assert!(p.u_left[i].is_nan());
+    }
+}
+
+#[test]
+fn warning_clamps() {
+    assert_eq!(warning(1.0, 0.1, 0.5, 0.5, 1.0), 4.0);
+    assert_eq!(warning(1.0, -0.2, 4.0, 0.5, 1.0), 1.0);
+    assert_eq!(warning(1.0, 2.0, 4.0, 0.5, 1.0), 1.0 / 16.0);
+    assert_eq!(warning(3.0, -2.0, 0.0, 0.5, 1.0), 3.0 / 4.0);
+}
+
+#[test]
+fn road_roi_penalises_flies_outside_it() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 4.0, 5, 1);
+    let roi = RoadRoi {
+        max_height: 1.2,
+        min_height: 0.1,
+        max_ahead: 16.0,
+        penalty: 0.0,
+    };
+    let mut e = Engine::new(
+        &rig,
+        EngineParams {
+            roi: Some(roi),
+            ..params(2000, 6)
+        },
+    )
+    .expect("engine");
+    e.step(&frame).expect("step");
+    let p = e.population();
+    for i in 0..p.len() {
+        if p.y[i] > 1.2 || p.y[i] < 0.1 || p.z[i] > 16.0 {
+            assert_eq!(p.raw_fitness[i], 0.0);
+        }
+    }
+    assert!(p.raw_fitness.iter().any(|&f| f > 0.0));
+}
+
+#[test]
+fn wrong_frame_size_is_an_error() {
+    let rig = rig();
+    let mut e = Engine::new(&rig, params(100, 5)).expect("engine");
+    let small = PreparedImage::new(80, 60).expect("image");
+    let frame = StereoFrame::new(small.clone(), small, 1);
+    assert!(matches!(
+        e.step(&frame),
+        Err(EngineError::FrameSize { which: "left", .. })
+    ));
+}
+
+#[test]
+fn danger_is_independent_of_contrast() {
+    // Halving the contrast of both images changes the fitness scale, not the danger.
+    let rig = rig();
+    let frame = wall_frame(&rig, 3.0, 5, 1);
+    let dim = |img: &PreparedImage, cam: &Camera| {
+        let px = render_wall(cam, 3.0, 5);
+        let half: Vec<u8> = px.iter().map(|&v| v / 2).collect();
+        let _ = img;
+        PreparedImage::from_pixels(cam.width(), cam.height(), PixelFormat::Rgb8, &half).unwrap()
+    };
+    let dim_frame = StereoFrame::new(
+        dim(&frame.left, &rig.left),
+        dim(&frame.right, &rig.right),
+        1,
+    );
+    let run = |f: &StereoFrame| {
+        let mut e = Engine::new(&rig, params(1500, 8)).expect("engine");
+        let mut s = GenerationStats::default();
+        for _ in 0..30 {
+            s = e.step(f).expect("step");
+        }
+        s
+    };
+    let (a, b) = (run(&frame), run(&dim_frame));
+    assert!(a.global_warning > 2.0 * b.global_warning, "{a:?} {b:?}");
+    assert!((a.danger / b.danger - 1.0).abs() < 0.25, "{a:?} {b:?}");
+}

@@ -1,0 +1,295 @@
+//! Per-frame preparation: everything the fitness function needs that depends only on the image.
+//!
+//! A [`PreparedImage`] is built once per captured frame (in the daemon: by the capture thread), so
+//! the evolution only reads it. Layout, chosen for the fitness kernel:
+//! - 4 bytes per pixel `[c0, c1, c2, g]`: the colour channels (RGB, or grey in `c0` with `c1 = c2 =
+//!   0`) and `g`, the Sobel gradient norm of the luma quantised to a byte (`|grad| / 4`, saturating
+//!   at 255). Putting the gradient beside the colour means one cache line serves both the
+//!   numerator and the neighbourhood of the fitness.
+//! - A border of [`PAD`] pixels on every side, replicated from the edge, so a neighbourhood window
+//!   (and the kernel's 16/32-byte loads) never leaves the buffer: the kernel has no bounds logic.
+//!
+//! Preparation never allocates once the image exists ([`PreparedImage::prepare_rgb`] refills in
+//! place); a frame of the wrong size is an error, not a panic.
+
+/// Border, in pixels, around the image (>= the largest neighbourhood radius plus the kernel's
+/// over-read).
+pub const PAD: usize = 8;
+/// Bytes per pixel in a prepared image.
+pub const BPP: usize = 4;
+/// The gradient norm is stored divided by this (Sobel of an 8-bit luma reaches ~1442).
+pub const GRADIENT_SCALE: f32 = 4.0;
+
+/// Pixel formats a frame can arrive in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelFormat {
+    /// 3 bytes per pixel, R G B.
+    Rgb8,
+    /// 1 byte per pixel.
+    Grey8,
+}
+
+impl PixelFormat {
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            PixelFormat::Rgb8 => 3,
+            PixelFormat::Grey8 => 1,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FrameError {
+    #[error("frame of {got} bytes does not match {width}x{height} {format:?} ({expected} bytes)")]
+    SizeMismatch {
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+        expected: usize,
+        got: usize,
+    },
+    #[error("image {width}x{height} is too small or too large")]
+    BadDimensions { width: u32, height: u32 },
+}
+
+/// An image ready for fitness evaluation (see the module docs for the layout).
+#[derive(Debug, Clone)]
+pub struct PreparedImage {
+    width: usize,
+    height: usize,
+    stride: usize,
+    /// Colour channels that carry data (3 for RGB, 1 for grey).
+    channels: u8,
+    data: Vec<u8>,
+    /// Scratch luma plane (unpadded) reused across frames.
+    luma: Vec<u8>,
+}
+
+impl PreparedImage {
+    /// An all-black image of the given size.
+    pub fn new(width: u32, height: u32) -> Result<Self, FrameError> {
+        if !(8..=8192).contains(&width) || !(8..=8192).contains(&height) {
+            return Err(FrameError::BadDimensions { width, height });
+        }
+        let (w, h) = (width as usize, height as usize);
+        let stride = (w + 2 * PAD) * BPP;
+        Ok(Self {
+            width: w,
+            height: h,
+            stride,
+            channels: 3,
+            data: vec![0; stride * (h + 2 * PAD)],
+            luma: vec![0; w * h],
+        })
+    }
+
+    /// Prepares a new image from packed pixels.
+    pub fn from_pixels(
+        width: u32,
+        height: u32,
+        format: PixelFormat,
+        pixels: &[u8],
+    ) -> Result<Self, FrameError> {
+        let mut img = Self::new(width, height)?;
+        img.prepare(format, pixels)?;
+        Ok(img)
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width as u32
+    }
+    pub fn height(&self) -> u32 {
+        self.height as u32
+    }
+    /// Colour channels that carry data: 3 (RGB) or 1 (grey, in channel 0).
+    pub fn channels(&self) -> u8 {
+        self.channels
+    }
+    /// Bytes between vertically adjacent pixels.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+    /// The padded buffer.
+    pub fn data(&self) -> &[u8] {
+        &self.data
+    }
+    /// Byte offset of pixel `(x, y)`; valid for `-PAD <= x < width + PAD` (same for y).
+    #[inline]
+    pub fn offset(&self, x: isize, y: isize) -> usize {
+        ((y + PAD as isize) as usize) * self.stride + ((x + PAD as isize) as usize) * BPP
+    }
+    /// Colour channels of pixel `(x, y)` (inside the image).
+    pub fn colour(&self, x: u32, y: u32) -> [u8; 3] {
+        let o = self.offset(x as isize, y as isize);
+        [self.data[o], self.data[o + 1], self.data[o + 2]]
+    }
+    /// Quantised gradient norm of pixel `(x, y)` (inside the image).
+    pub fn gradient(&self, x: u32, y: u32) -> u8 {
+        self.data[self.offset(x as isize, y as isize) + 3]
+    }
+
+    /// Refills this image from packed pixels of the same size, without allocating.
+    pub fn prepare(&mut self, format: PixelFormat, pixels: &[u8]) -> Result<(), FrameError> {
+        let (w, h) = (self.width, self.height);
+        let expected = w * h * format.bytes_per_pixel();
+        if pixels.len() != expected {
+            return Err(FrameError::SizeMismatch {
+                width: w as u32,
+                height: h as u32,
+                format,
+                expected,
+                got: pixels.len(),
+            });
+        }
+        self.channels = match format {
+            PixelFormat::Rgb8 => 3,
+            PixelFormat::Grey8 => 1,
+        };
+        // Colour and luma.
+        for y in 0..h {
+            let row = self.offset(0, y as isize);
+            let dst = &mut self.data[row..row + w * BPP];
+            let luma = &mut self.luma[y * w..(y + 1) * w];
+            match format {
+                PixelFormat::Rgb8 => {
+                    let src = &pixels[y * w * 3..(y + 1) * w * 3];
+                    for ((d, s), l) in dst
+                        .chunks_exact_mut(BPP)
+                        .zip(src.chunks_exact(3))
+                        .zip(luma.iter_mut())
+                    {
+                        d[0] = s[0];
+                        d[1] = s[1];
+                        d[2] = s[2];
+                        // ITU-R BT.601 weights in 8-bit fixed point.
+                        *l = ((77 * s[0] as u32 + 150 * s[1] as u32 + 29 * s[2] as u32) >> 8) as u8;
+                    }
+                }
+                PixelFormat::Grey8 => {
+                    let src = &pixels[y * w..(y + 1) * w];
+                    for ((d, &s), l) in dst.chunks_exact_mut(BPP).zip(src).zip(luma.iter_mut()) {
+                        d[0] = s;
+                        d[1] = 0;
+                        d[2] = 0;
+                        *l = s;
+                    }
+                }
+            }
+        }
+        self.fill_gradient();
+        self.replicate_border();
+        Ok(())
+    }
+
+    /// Sobel gradient norm of the luma, with the image edge replicated.
+    fn fill_gradient(&mut self) {
+        let (w, h) = (self.width, self.height);
+        let luma = &self.luma;
+        let at = |x: usize, y: usize| luma[y * w + x] as i32;
+        for y in 0..h {
+            let (ym, yp) = (y.saturating_sub(1), (y + 1).min(h - 1));
+            let row = self.offset(0, y as isize);
+            for x in 0..w {
+                let (xm, xp) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let gx = (at(xp, ym) + 2 * at(xp, y) + at(xp, yp))
+                    - (at(xm, ym) + 2 * at(xm, y) + at(xm, yp));
+                let gy = (at(xm, yp) + 2 * at(x, yp) + at(xp, yp))
+                    - (at(xm, ym) + 2 * at(x, ym) + at(xp, ym));
+                let norm = ((gx * gx + gy * gy) as f32).sqrt() / GRADIENT_SCALE;
+                self.data[row + x * BPP + 3] = norm.round().min(255.0) as u8;
+            }
+        }
+    }
+
+    fn replicate_border(&mut self) {
+        let (w, h, stride) = (self.width, self.height, self.stride);
+        let row_bytes = w * BPP;
+        for y in 0..h {
+            let start = (y + PAD) * stride;
+            let first = start + PAD * BPP;
+            let last = first + row_bytes - BPP;
+            for p in 0..PAD {
+                self.data.copy_within(first..first + BPP, start + p * BPP);
+                let right = first + row_bytes + p * BPP;
+                self.data.copy_within(last..last + BPP, right);
+            }
+        }
+        for p in 0..PAD {
+            self.data
+                .copy_within(PAD * stride..(PAD + 1) * stride, p * stride);
+            let src = (PAD + h - 1) * stride;
+            self.data
+                .copy_within(src..src + stride, (PAD + h + p) * stride);
+        }
+    }
+}
+
+/// A left/right pair ready for evaluation, with an identity so the engine knows when it changed.
+#[derive(Debug, Clone)]
+pub struct StereoFrame {
+    pub left: PreparedImage,
+    pub right: PreparedImage,
+    /// Changes whenever the pair's content changes (e.g. the capture sequence number).
+    pub id: u64,
+}
+
+impl StereoFrame {
+    pub fn new(left: PreparedImage, right: PreparedImage, id: u64) -> Self {
+        Self { left, right, id }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layout_and_border() {
+        let (w, h) = (20u32, 10u32);
+        let px: Vec<u8> = (0..w * h * 3).map(|i| (i % 251) as u8).collect();
+        let img = PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, &px).unwrap();
+        assert_eq!(
+            img.colour(3, 2),
+            [
+                px[(2 * 20 + 3) * 3],
+                px[(2 * 20 + 3) * 3 + 1],
+                px[(2 * 20 + 3) * 3 + 2]
+            ]
+        );
+        // Border replicates the nearest edge pixel, gradient byte included.
+        let d = img.data();
+        let corner = img.offset(0, 0);
+        let outside = img.offset(-(PAD as isize), -(PAD as isize));
+        assert_eq!(d[corner..corner + 4], d[outside..outside + 4]);
+        let edge = img.offset(19, 9);
+        let beyond = img.offset(19 + PAD as isize - 1, 9 + PAD as isize - 1);
+        assert_eq!(d[edge..edge + 4], d[beyond..beyond + 4]);
+    }
+
+    #[test]
+    fn sobel_of_a_vertical_step() {
+        let (w, h) = (16u32, 16u32);
+        let px: Vec<u8> = (0..w * h)
+            .map(|i| if i % w < 8 { 0 } else { 100 })
+            .collect();
+        let img = PreparedImage::from_pixels(w, h, PixelFormat::Grey8, &px).unwrap();
+        // Sobel gx at the step is 4 * 100 = 400, quantised /4 -> 100.
+        assert_eq!(img.gradient(7, 5), 100);
+        assert_eq!(img.gradient(8, 5), 100);
+        assert_eq!(img.gradient(3, 5), 0);
+        assert_eq!(img.colour(9, 0), [100, 0, 0]);
+    }
+
+    #[test]
+    fn wrong_sizes_are_errors() {
+        assert!(matches!(
+            PreparedImage::from_pixels(16, 16, PixelFormat::Rgb8, &[0; 10]),
+            Err(FrameError::SizeMismatch {
+                expected: 768,
+                got: 10,
+                ..
+            })
+        ));
+        assert!(PreparedImage::new(2, 100000).is_err());
+    }
+}
