@@ -136,7 +136,15 @@ impl<'a> Kernel<'a> {
             }
             // In range by construction: projections lie in [-0.5, size - 0.5).
             let (uli, vli) = ((ul + 0.5) as isize, (vl + 0.5) as isize);
-            let (uri, vri) = ((ur + 0.5) as isize, (vr + 0.5) as isize);
+            // The left window sits on the rounded left pixel, i.e. `fl = ul - round(ul)` away from
+            // the projection; the right window is taken at `ur - fl`, interpolated horizontally,
+            // so the compared windows show the same scene point and the fitness resolves
+            // disparity below the pixel (what the disparity accuracy rests on).
+            let fl = ul - uli as f32;
+            let ur_shift = ur - fl;
+            let uri = ur_shift.floor();
+            let t = ((ur_shift - uri) * 128.0 + 0.5) as u16;
+            let (uri, vri) = (uri as isize, (vr + 0.5) as isize);
             cells[i] = grid.cell(ul, vl);
             let lo = self.left.offset(uli - r, vli - r);
             let ro = self.right.offset(uri - r, vri - r);
@@ -144,7 +152,7 @@ impl<'a> Kernel<'a> {
                 fitness[i] = 0.0;
                 continue;
             };
-            let ssd = ssd::<W>(ld, lo, ls, rd, ro, rs, rows, mask);
+            let ssd = ssd::<W>(ld, lo, ls, rd, ro, rs, rows, mask, t);
             let mut f = gl as f32 * gr as f32 / (ssd as f32 + self.floor);
             if ys[i] > max_h || ys[i] < min_h || zs[i] > max_z {
                 f *= penalty;
@@ -154,7 +162,8 @@ impl<'a> Kernel<'a> {
     }
 }
 
-/// Sum of squared differences of `rows` rows of `W` bytes under `mask`.
+/// Sum of squared differences of `rows` rows of `W` bytes under `mask`, the right row being
+/// interpolated between its pixel and the next one with weight `t / 128`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn ssd<const W: usize>(
@@ -166,43 +175,59 @@ fn ssd<const W: usize>(
     rs: usize,
     rows: usize,
     mask: &[u8; W],
+    t: u16,
 ) -> u32 {
     let mut acc = 0u32;
     for j in 0..rows {
-        let (Some(a), Some(b)) = (
+        let (Some(a), Some(b0), Some(b1)) = (
             l.get(lo + j * ls..).and_then(|s| s.first_chunk::<W>()),
             r.get(ro + j * rs..).and_then(|s| s.first_chunk::<W>()),
+            r.get(ro + j * rs + BPP..)
+                .and_then(|s| s.first_chunk::<W>()),
         ) else {
             // Unreachable with the padded layout; fail as a mismatch rather than panic.
             return u32::MAX / 2;
         };
-        acc += row_ssd(a, b, mask);
+        acc += row_ssd(a, b0, b1, t, mask);
     }
     acc
 }
 
-/// Squared differences of one row, SSE2 (baseline on every x86-64): per 16 bytes, one AND with
-/// the mask, widening to 16 bits, one subtraction and one `pmaddwd` per half.
+/// Squared differences of one row, SSE2 (baseline on every x86-64): per 16 bytes, the right
+/// bytes are blended `(b0 (128 - t) + b1 t + 64) >> 7` in 16 bits, the mask zeroes what is not
+/// compared, and one `pmaddwd` per half squares and sums.
 #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
 #[inline(always)]
-fn row_ssd<const W: usize>(a: &[u8; W], b: &[u8; W], mask: &[u8; W]) -> u32 {
+fn row_ssd<const W: usize>(a: &[u8; W], b0: &[u8; W], b1: &[u8; W], t: u16, mask: &[u8; W]) -> u32 {
     use std::arch::x86_64::*;
     // SAFETY: SSE2 is enabled for this build (checked by the cfg above; it is part of the x86-64
     // baseline), and every load reads 16 bytes through a pointer taken from a `&[u8; 16]`.
     unsafe {
         let mut sum = _mm_setzero_si128();
         let zero = _mm_setzero_si128();
+        let w1 = _mm_set1_epi16(t as i16);
+        let w0 = _mm_set1_epi16(128 - t as i16);
+        let half = _mm_set1_epi16(64);
         for k in (0..W).step_by(16) {
-            let (Some(a), Some(b), Some(m)) = (
+            let (Some(a), Some(b0), Some(b1), Some(m)) = (
                 a[k..].first_chunk::<16>(),
-                b[k..].first_chunk::<16>(),
+                b0[k..].first_chunk::<16>(),
+                b1[k..].first_chunk::<16>(),
                 mask[k..].first_chunk::<16>(),
             ) else {
                 break;
             };
             let vm = _mm_loadu_si128(m.as_ptr().cast());
             let va = _mm_and_si128(_mm_loadu_si128(a.as_ptr().cast()), vm);
-            let vb = _mm_and_si128(_mm_loadu_si128(b.as_ptr().cast()), vm);
+            let v0 = _mm_loadu_si128(b0.as_ptr().cast());
+            let v1 = _mm_loadu_si128(b1.as_ptr().cast());
+            let blend = |x0: __m128i, x1: __m128i| {
+                let s = _mm_add_epi16(_mm_mullo_epi16(x0, w0), _mm_mullo_epi16(x1, w1));
+                _mm_srli_epi16(_mm_add_epi16(s, half), 7)
+            };
+            let blo = blend(_mm_unpacklo_epi8(v0, zero), _mm_unpacklo_epi8(v1, zero));
+            let bhi = blend(_mm_unpackhi_epi8(v0, zero), _mm_unpackhi_epi8(v1, zero));
+            let vb = _mm_and_si128(_mm_packus_epi16(blo, bhi), vm);
             let lo = _mm_sub_epi16(_mm_unpacklo_epi8(va, zero), _mm_unpacklo_epi8(vb, zero));
             let hi = _mm_sub_epi16(_mm_unpackhi_epi8(va, zero), _mm_unpackhi_epi8(vb, zero));
             sum = _mm_add_epi32(sum, _mm_madd_epi16(lo, lo));
@@ -214,17 +239,27 @@ fn row_ssd<const W: usize>(a: &[u8; W], b: &[u8; W], mask: &[u8; W]) -> u32 {
     }
 }
 
-/// Portable fallback of the row kernel.
-#[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
+/// Portable version of the row kernel (the reference the SSE2 one is tested against).
+#[cfg_attr(all(target_arch = "x86_64", target_feature = "sse2"), allow(dead_code))]
 #[inline(always)]
-fn row_ssd<const W: usize>(a: &[u8; W], b: &[u8; W], mask: &[u8; W]) -> u32 {
+fn row_ssd_portable<const W: usize>(
+    a: &[u8; W],
+    b0: &[u8; W],
+    b1: &[u8; W],
+    t: u16,
+    mask: &[u8; W],
+) -> u32 {
     let mut s = 0u32;
     for k in 0..W {
-        let d = (a[k] & mask[k]) as i32 - (b[k] & mask[k]) as i32;
+        let b = ((b0[k] as u16 * (128 - t) + b1[k] as u16 * t + 64) >> 7) as u8;
+        let d = (a[k] & mask[k]) as i32 - (b & mask[k]) as i32;
         s += (d * d) as u32;
     }
     s
 }
+
+#[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
+use row_ssd_portable as row_ssd;
 
 #[cfg(test)]
 mod tests {
@@ -253,6 +288,46 @@ mod tests {
         r[5] = 13; // counted: 3^2
         r[16] = 8; // second row, first byte: 2^2
         let m: [u8; 16] = mask(1, 3);
-        assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 2, &m), 13);
+        // t = 0: no interpolation.
+        assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 2, &m, 0), 13);
+    }
+
+    #[test]
+    fn interpolation_halfway_between_pixels() {
+        let l = vec![30u8; 64];
+        // Right row: pixel values 20, 40, 20, 40, ... halfway blends are 30 = the left row.
+        let r: Vec<u8> = (0..64)
+            .map(|k| if (k / 4) % 2 == 0 { 20 } else { 40 })
+            .collect();
+        let m: [u8; 16] = mask(1, 3);
+        assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 1, &m, 64), 0);
+        assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 1, &m, 0), 9 * 100);
+    }
+
+    #[test]
+    fn simd_row_kernel_matches_the_portable_one() {
+        let mut x = 0x9e37_79b9u32;
+        let mut byte = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as u8
+        };
+        for t in [0u16, 1, 37, 64, 127, 128] {
+            let (mut a, mut b0, mut b1) = ([0u8; 32], [0u8; 32], [0u8; 32]);
+            for k in 0..32 {
+                (a[k], b0[k], b1[k]) = (byte(), byte(), byte());
+            }
+            let m: [u8; 32] = mask(3, 3);
+            assert_eq!(
+                row_ssd(&a, &b0, &b1, t, &m),
+                row_ssd_portable(&a, &b0, &b1, t, &m)
+            );
+            let m: [u8; 32] = mask(2, 1);
+            assert_eq!(
+                row_ssd(&a, &b0, &b1, t, &m),
+                row_ssd_portable(&a, &b0, &b1, t, &m)
+            );
+        }
     }
 }

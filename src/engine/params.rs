@@ -74,7 +74,7 @@ impl Default for EngineParams {
             immigration_rate: 0.1,
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
-            neighbourhood_radius: 1,
+            neighbourhood_radius: 2,
             ssd_floor: 1.0,
             sharing_cell_px: 8,
             sharing_exponent: 1.0,
