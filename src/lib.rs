@@ -1,1 +1,2 @@
+pub mod can;
 pub mod geometry;
