@@ -1,5 +1,10 @@
 //! flyd on the CAN bus: the message contract, its E2E protection, and the transports.
 //!
+//! Every frame: 8 bytes, byte 0 = CRC-8 SAE J1850 over (Data ID lo, Data ID hi, bytes 1..=7),
+//! byte 1 low nibble = alive counter 0..=14 (AUTOSAR E2E profile 1 style).
+//!
 //! - [`crc`]: the CRC.
+//! - [`messages`]: typed messages, byte layout, saturation rules, decoding checks.
 
 pub mod crc;
+pub mod messages;
