@@ -5,6 +5,11 @@
 //!
 //! - [`crc`]: the CRC.
 //! - [`messages`]: typed messages, byte layout, saturation rules, decoding checks.
+//! - [`bus`]: the [`bus::CanBus`] trait, SocketCAN / candump-log / in-memory backends, error
+//!   classes (retryable vs fatal).
+//! - [`candump`]: the `candump -l` line format, both ways.
 
+pub mod bus;
+pub mod candump;
 pub mod crc;
 pub mod messages;
