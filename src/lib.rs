@@ -1,2 +1,3 @@
 pub mod can;
+pub mod decision;
 pub mod geometry;
