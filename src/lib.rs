@@ -1,3 +1,5 @@
+pub mod can;
+pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;

@@ -80,7 +80,7 @@ impl Projector {
     pub(crate) fn project(&self, x: f32, y: f32, z: f32) -> Option<(f32, f32)> {
         let [xc, yc, zc] = self.to_camera(x, y, z);
         // Written so that NaN is rejected too.
-        if zc.partial_cmp(&MIN_DEPTH) != Some(std::cmp::Ordering::Greater) {
+        if zc.is_nan() || zc <= MIN_DEPTH {
             return None;
         }
         let inv = 1.0 / zc;

@@ -1,0 +1,760 @@
+//! Where frames go: the [`CanBus`] trait and its backends.
+//!
+//! - [`SocketCanBus`]: a Linux SocketCAN raw socket (real `can0` or `vcan0`).
+//! - [`CandumpLogBus`]: `candump -l` lines to any [`Write`] (file, stdout), replayable with
+//!   `canplayer`; for running without CAN hardware.
+//! - [`MemoryBus`]: records frames in memory for tests, and can be told to fail.
+//!
+//! IDs follow Linux `canid_t`: bit 31 ([`CAN_EFF_FLAG`]) set = 29-bit extended, otherwise
+//! 11-bit standard; every backend rejects IDs and lengths a classic CAN frame cannot carry.
+//!
+//! # Error classes
+//! [`BusError::is_retryable`] tells whether sending the *same frame on the same bus later* may
+//! work, so the caller keeps the bus and tries again next period:
+//!
+//! | class | errors | typical cause |
+//! |-------|--------|---------------|
+//! | retryable | [`BusError::WouldBlock`] (EAGAIN), [`BusError::QueueFull`] (ENOBUFS) | TX queue full: bus saturated, unacknowledged frames (no other node), or around bus-off |
+//! | retryable | [`BusError::InterfaceDown`] (ENETDOWN) | `ip link set can0 down`, or the driver took it down after bus-off |
+//! | retryable | [`BusError::BusOff`] | the controller reported bus-off (error frame) and writes fail |
+//! | fatal | [`BusError::InvalidFrame`] | a bug: ID or length not sendable |
+//! | fatal | [`BusError::NoDevice`] (ENODEV, ENXIO) | interface does not exist or was removed: reopen needed |
+//! | fatal | [`BusError::Unsupported`] (EAFNOSUPPORT, EPROTONOSUPPORT) | kernel without CAN |
+//! | fatal | [`BusError::Io`] | anything else (EBADF, EPERM, a log file's ENOSPC, ...) |
+//!
+//! Fatal means "this handle will not send this frame": the daemon reports it (fault bit 6) and
+//! decides whether to reopen the bus; retrying in a loop would not help.
+
+use std::collections::VecDeque;
+use std::io::{self, Write};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use thiserror::Error;
+
+use super::candump::{CAN_EFF_FLAG, CAN_EFF_MAX, CAN_MAX_DLEN, CAN_SFF_MAX, format_candump_line};
+
+/// A destination for CAN frames.
+pub trait CanBus: Send {
+    /// Queues one classic CAN data frame for transmission. `id` uses the [`CAN_EFF_FLAG`]
+    /// convention; `data` is at most 8 bytes. Must not block for long: flyd sends from a 20 ms
+    /// loop.
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError>;
+}
+
+impl<B: CanBus + ?Sized> CanBus for Box<B> {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        (**self).send(id, data)
+    }
+}
+
+/// A failed send, classified (see the module docs for the classes).
+///
+/// It is `Clone + PartialEq` (it keeps the errno, not the `io::Error`) so that tests can make
+/// [`MemoryBus`] fail with any of them and compare.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum BusError {
+    #[error("CAN socket send buffer full (EAGAIN)")]
+    WouldBlock,
+    #[error("CAN transmit queue full (ENOBUFS) after {attempts} attempt(s)")]
+    QueueFull { attempts: u32 },
+    #[error("CAN interface is down (ENETDOWN)")]
+    InterfaceDown,
+    #[error("CAN controller is bus-off")]
+    BusOff,
+    #[error("invalid CAN frame: id {id:#x} with {len} data bytes")]
+    InvalidFrame { id: u32, len: usize },
+    #[error("CAN interface not found or removed (errno {errno})")]
+    NoDevice { errno: i32 },
+    #[error("CAN is not supported by this kernel (errno {errno})")]
+    Unsupported { errno: i32 },
+    #[error("CAN I/O error: {message}")]
+    Io { errno: Option<i32>, message: String },
+}
+
+impl BusError {
+    /// `true`: keep the bus and try again later; `false`: this handle cannot send the frame.
+    pub fn is_retryable(&self) -> bool {
+        matches!(
+            self,
+            Self::WouldBlock | Self::QueueFull { .. } | Self::InterfaceDown | Self::BusOff
+        )
+    }
+
+    pub fn is_fatal(&self) -> bool {
+        !self.is_retryable()
+    }
+
+    /// Classifies an I/O error by its errno (falling back to its kind when there is none).
+    pub fn from_io(e: &io::Error) -> Self {
+        match e.raw_os_error() {
+            Some(errno) => Self::from_errno(errno, e),
+            None if e.kind() == io::ErrorKind::WouldBlock => Self::WouldBlock,
+            None => Self::Io {
+                errno: None,
+                message: e.to_string(),
+            },
+        }
+    }
+
+    fn from_errno(errno: i32, e: &io::Error) -> Self {
+        match errno {
+            libc::EAGAIN => Self::WouldBlock,
+            libc::ENOBUFS => Self::QueueFull { attempts: 1 },
+            libc::ENETDOWN => Self::InterfaceDown,
+            libc::ENODEV | libc::ENXIO => Self::NoDevice { errno },
+            libc::EAFNOSUPPORT | libc::EPROTONOSUPPORT => Self::Unsupported { errno },
+            _ => Self::Io {
+                errno: Some(errno),
+                message: e.to_string(),
+            },
+        }
+    }
+}
+
+/// Rejects what a classic CAN data frame cannot carry, before any backend sees it.
+fn check_frame(id: u32, data: &[u8]) -> Result<(), BusError> {
+    let id_ok = if id & CAN_EFF_FLAG != 0 {
+        id & !CAN_EFF_FLAG <= CAN_EFF_MAX
+    } else {
+        id <= CAN_SFF_MAX
+    };
+    if id_ok && data.len() <= CAN_MAX_DLEN {
+        Ok(())
+    } else {
+        Err(BusError::InvalidFrame {
+            id,
+            len: data.len(),
+        })
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Clocks
+
+/// Where log and test backends get timestamps from, so that the logic never reads the system
+/// clock itself and tests are deterministic.
+pub trait Clock: Send {
+    /// Time since the clock's epoch (the Unix epoch for [`SystemClock`]).
+    fn now(&self) -> Duration;
+}
+
+impl<F: Fn() -> Duration + Send> Clock for F {
+    fn now(&self) -> Duration {
+        self()
+    }
+}
+
+/// Wall-clock time since the Unix epoch, as candump logs carry (the daemon's production clock).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SystemClock;
+
+impl Clock for SystemClock {
+    fn now(&self) -> Duration {
+        // A clock before 1970 is a misconfigured machine; 0 keeps the log well-formed.
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap_or_default()
+    }
+}
+
+/// A clock tests set by hand; clones share the same time.
+#[derive(Debug, Clone, Default)]
+pub struct ManualClock(Arc<AtomicU64>);
+
+impl ManualClock {
+    pub fn new(start: Duration) -> Self {
+        let clock = Self::default();
+        clock.set(start);
+        clock
+    }
+
+    pub fn set(&self, t: Duration) {
+        self.0.store(saturating_nanos(t), Ordering::Relaxed);
+    }
+
+    pub fn advance(&self, dt: Duration) {
+        let _ = self
+            .0
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| {
+                Some(n.saturating_add(saturating_nanos(dt)))
+            });
+    }
+}
+
+impl Clock for ManualClock {
+    fn now(&self) -> Duration {
+        Duration::from_nanos(self.0.load(Ordering::Relaxed))
+    }
+}
+
+fn saturating_nanos(t: Duration) -> u64 {
+    u64::try_from(t.as_nanos()).unwrap_or(u64::MAX)
+}
+
+// ---------------------------------------------------------------------------------------------
+// MemoryBus
+
+/// A frame [`MemoryBus`] accepted.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecordedFrame {
+    pub timestamp: Duration,
+    pub id: u32,
+    pub data: Vec<u8>,
+}
+
+struct MemoryState {
+    clock: Box<dyn Clock>,
+    frames: Vec<RecordedFrame>,
+    /// Failures for the next sends, in order (one each).
+    scripted: VecDeque<BusError>,
+    /// Failure for every send while set (after the scripted ones).
+    persistent: Option<BusError>,
+    attempts: u64,
+}
+
+/// In-memory bus for tests. Clones are handles to the same recording, so a test keeps one
+/// handle and gives the other to the code under test.
+#[derive(Clone)]
+pub struct MemoryBus {
+    state: Arc<Mutex<MemoryState>>,
+}
+
+impl MemoryBus {
+    pub fn new(clock: impl Clock + 'static) -> Self {
+        Self {
+            state: Arc::new(Mutex::new(MemoryState {
+                clock: Box::new(clock),
+                frames: Vec::new(),
+                scripted: VecDeque::new(),
+                persistent: None,
+                attempts: 0,
+            })),
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, MemoryState> {
+        // A panic while holding the lock cannot leave the state half-updated (every update is
+        // a single push or pop), so a poisoned lock is still usable.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Frames sent so far.
+    pub fn frames(&self) -> Vec<RecordedFrame> {
+        self.lock().frames.clone()
+    }
+
+    /// Frames sent so far, clearing the recording.
+    pub fn take_frames(&self) -> Vec<RecordedFrame> {
+        std::mem::take(&mut self.lock().frames)
+    }
+
+    /// Makes the next send fail with `error` (queue several for several sends).
+    pub fn fail_next(&self, error: BusError) {
+        self.lock().scripted.push_back(error);
+    }
+
+    /// Makes every send fail with `error` until called with `None`.
+    pub fn set_failing(&self, error: Option<BusError>) {
+        self.lock().persistent = error;
+    }
+
+    /// Number of `send` calls, failed ones included.
+    pub fn attempts(&self) -> u64 {
+        self.lock().attempts
+    }
+}
+
+impl CanBus for MemoryBus {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        let mut state = self.lock();
+        state.attempts += 1;
+        check_frame(id, data)?;
+        if let Some(error) = state.scripted.pop_front() {
+            return Err(error);
+        }
+        if let Some(error) = &state.persistent {
+            return Err(error.clone());
+        }
+        let timestamp = state.clock.now();
+        state.frames.push(RecordedFrame {
+            timestamp,
+            id,
+            data: data.to_vec(),
+        });
+        Ok(())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// CandumpLogBus
+
+/// Writes every frame as a `candump -l` line, flushed at once (a crash loses no frame, and a
+/// pipe to `canplayer` or a viewer sees frames live).
+pub struct CandumpLogBus<W: Write + Send, C: Clock> {
+    out: W,
+    iface: String,
+    clock: C,
+}
+
+impl<W: Write + Send, C: Clock> CandumpLogBus<W, C> {
+    /// `iface` is the interface name written into each line (what `canplayer` replays onto,
+    /// unless remapped with `canplayer vcan0=can0`).
+    pub fn new(out: W, iface: impl Into<String>, clock: C) -> Self {
+        Self {
+            out,
+            iface: iface.into(),
+            clock,
+        }
+    }
+
+    /// Writes one frame with an explicit timestamp (for callers that already hold one).
+    pub fn write_frame_at(
+        &mut self,
+        timestamp: Duration,
+        id: u32,
+        data: &[u8],
+    ) -> Result<(), BusError> {
+        check_frame(id, data)?;
+        let mut line = format_candump_line(timestamp, &self.iface, id, data);
+        line.push('\n');
+        self.out
+            .write_all(line.as_bytes())
+            .and_then(|()| self.out.flush())
+            .map_err(|e| BusError::from_io(&e))
+    }
+
+    pub fn get_ref(&self) -> &W {
+        &self.out
+    }
+
+    pub fn into_inner(self) -> W {
+        self.out
+    }
+}
+
+impl<W: Write + Send, C: Clock> CanBus for CandumpLogBus<W, C> {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        let now = self.clock.now();
+        self.write_frame_at(now, id, data)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// SocketCAN
+
+/// Bounded retry of a full transmit queue inside one `send`.
+///
+/// socketcan's `write_frame_insist` retries only EAGAIN and forever; ENOBUFS (qdisc full, the
+/// usual symptom near bus-off on Linux) needs its own retry, and it must be bounded: a blocked
+/// 20 ms control loop is worse than one lost frame (the next period sends fresh data anyway).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RetryPolicy {
+    /// Total write attempts for one frame (at least 1).
+    pub max_attempts: u32,
+    /// Pause between attempts.
+    pub delay: Duration,
+}
+
+impl Default for RetryPolicy {
+    /// 3 attempts 200 µs apart: at most ~0.4 ms of a 20 ms period.
+    fn default() -> Self {
+        Self {
+            max_attempts: 3,
+            delay: Duration::from_micros(200),
+        }
+    }
+}
+
+/// Runs `write` until it succeeds, fails with a non-transient error, or the attempts run out.
+/// EAGAIN, ENOBUFS and EINTR are transient; `sleep` is injected so tests do not wait.
+pub fn write_with_retry(
+    policy: RetryPolicy,
+    mut write: impl FnMut() -> io::Result<()>,
+    mut sleep: impl FnMut(Duration),
+) -> Result<(), BusError> {
+    let max = policy.max_attempts.max(1);
+    let mut attempt = 1;
+    loop {
+        let error = match write() {
+            Ok(()) => return Ok(()),
+            Err(e) => e,
+        };
+        let transient = matches!(
+            error.raw_os_error(),
+            Some(libc::EAGAIN | libc::ENOBUFS | libc::EINTR)
+        ) || error.kind() == io::ErrorKind::WouldBlock;
+        if !transient || attempt >= max {
+            return Err(match BusError::from_io(&error) {
+                BusError::QueueFull { .. } => BusError::QueueFull { attempts: attempt },
+                // EINTR on the last attempt: nothing is wrong with the bus.
+                BusError::Io {
+                    errno: Some(libc::EINTR),
+                    ..
+                } => BusError::WouldBlock,
+                other => other,
+            });
+        }
+        attempt += 1;
+        sleep(policy.delay);
+    }
+}
+
+/// Tracks bus-off from the controller's error frames: set by `CAN_ERR_BUSOFF`, cleared by
+/// `CAN_ERR_RESTARTED` (automatic `restart-ms` or a manual restart).
+pub fn next_bus_off_state(bus_off: bool, error_class_bits: u32) -> bool {
+    if error_class_bits & socketcan::errors::CAN_ERR_RESTARTED != 0 {
+        false
+    } else if error_class_bits & socketcan::errors::CAN_ERR_BUSOFF != 0 {
+        true
+    } else {
+        bus_off
+    }
+}
+
+/// A SocketCAN raw socket, non-blocking, transmit-only.
+///
+/// The socket receives no data frames (filter drops all) but subscribes to bus-off and restart
+/// error frames, read without blocking before each send, so that write failures while the
+/// controller is bus-off are reported as [`BusError::BusOff`] rather than a plain full queue.
+/// An interface taken down and up without a restart frame clears the state at the next
+/// ENETDOWN.
+pub struct SocketCanBus {
+    socket: socketcan::CanSocket,
+    iface: String,
+    policy: RetryPolicy,
+    bus_off: bool,
+}
+
+impl SocketCanBus {
+    /// At most this many error frames are drained per send, so a babbling controller cannot
+    /// stall the loop.
+    const MAX_ERROR_FRAMES_PER_SEND: usize = 16;
+
+    /// Opens `iface` (e.g. `can0`, `vcan0`). Fails with [`BusError::NoDevice`] when it does not
+    /// exist and [`BusError::Unsupported`] on a kernel without CAN.
+    pub fn open(iface: &str, policy: RetryPolicy) -> Result<Self, BusError> {
+        use socketcan::{Socket, SocketOptions};
+        let io = |e: io::Error| BusError::from_io(&e);
+        let socket = socketcan::CanSocket::open(iface).map_err(io)?;
+        socket.set_nonblocking(true).map_err(io)?;
+        socket.set_filter_drop_all().map_err(io)?;
+        socket
+            .set_error_filter(
+                socketcan::errors::CAN_ERR_BUSOFF | socketcan::errors::CAN_ERR_RESTARTED,
+            )
+            .map_err(io)?;
+        Ok(Self {
+            socket,
+            iface: iface.to_owned(),
+            policy,
+            bus_off: false,
+        })
+    }
+
+    pub fn iface(&self) -> &str {
+        &self.iface
+    }
+
+    /// Whether the controller last reported bus-off.
+    pub fn is_bus_off(&self) -> bool {
+        self.bus_off
+    }
+
+    fn drain_error_frames(&mut self) {
+        use socketcan::{CanFrame, Socket};
+        for _ in 0..Self::MAX_ERROR_FRAMES_PER_SEND {
+            match self.socket.read_frame() {
+                Ok(CanFrame::Error(frame)) => {
+                    self.bus_off = next_bus_off_state(self.bus_off, frame.error_bits());
+                }
+                Ok(_) => {}
+                // WouldBlock: nothing pending. Other read errors do not concern sending.
+                Err(_) => break,
+            }
+        }
+    }
+
+    fn make_frame(id: u32, data: &[u8]) -> Result<socketcan::CanFrame, BusError> {
+        use socketcan::{EmbeddedFrame, ExtendedId, Id, StandardId};
+        let invalid = || BusError::InvalidFrame {
+            id,
+            len: data.len(),
+        };
+        check_frame(id, data)?;
+        let can_id: Id = if id & CAN_EFF_FLAG != 0 {
+            ExtendedId::new(id & CAN_EFF_MAX)
+                .ok_or_else(invalid)?
+                .into()
+        } else {
+            let sid = u16::try_from(id).map_err(|_| invalid())?;
+            StandardId::new(sid).ok_or_else(invalid)?.into()
+        };
+        socketcan::CanFrame::new(can_id, data).ok_or_else(invalid)
+    }
+}
+
+impl CanBus for SocketCanBus {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        use socketcan::Socket;
+        let frame = Self::make_frame(id, data)?;
+        self.drain_error_frames();
+        let socket = &self.socket;
+        let result = write_with_retry(
+            self.policy,
+            || socket.write_frame(&frame),
+            std::thread::sleep,
+        );
+        match result {
+            Err(BusError::InterfaceDown) => {
+                self.bus_off = false;
+                Err(BusError::InterfaceDown)
+            }
+            Err(BusError::QueueFull { .. } | BusError::WouldBlock) if self.bus_off => {
+                Err(BusError::BusOff)
+            }
+            other => other,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::candump::parse_candump_line;
+
+    fn os(errno: i32) -> io::Error {
+        io::Error::from_raw_os_error(errno)
+    }
+
+    #[test]
+    fn errno_classification() {
+        let cases = [
+            (libc::EAGAIN, BusError::WouldBlock, true),
+            (libc::ENOBUFS, BusError::QueueFull { attempts: 1 }, true),
+            (libc::ENETDOWN, BusError::InterfaceDown, true),
+            (
+                libc::ENODEV,
+                BusError::NoDevice {
+                    errno: libc::ENODEV,
+                },
+                false,
+            ),
+            (
+                libc::ENXIO,
+                BusError::NoDevice { errno: libc::ENXIO },
+                false,
+            ),
+            (
+                libc::EAFNOSUPPORT,
+                BusError::Unsupported {
+                    errno: libc::EAFNOSUPPORT,
+                },
+                false,
+            ),
+        ];
+        for (errno, want, retryable) in cases {
+            let got = BusError::from_io(&os(errno));
+            assert_eq!(got, want, "errno {errno}");
+            assert_eq!(got.is_retryable(), retryable, "errno {errno}");
+        }
+        let other = BusError::from_io(&os(libc::EPERM));
+        assert!(matches!(other, BusError::Io { errno: Some(e), .. } if e == libc::EPERM));
+        assert!(other.is_fatal());
+        assert!(BusError::BusOff.is_retryable());
+        assert!(BusError::InvalidFrame { id: 0x800, len: 0 }.is_fatal());
+        assert_eq!(
+            BusError::from_io(&io::Error::from(io::ErrorKind::WouldBlock)),
+            BusError::WouldBlock
+        );
+    }
+
+    #[test]
+    fn retry_is_bounded_and_only_for_transient_errors() {
+        let policy = RetryPolicy {
+            max_attempts: 3,
+            delay: Duration::from_micros(7),
+        };
+
+        // ENOBUFS forever: exactly max_attempts writes, max_attempts - 1 pauses.
+        let (mut writes, mut sleeps) = (0, Vec::new());
+        let result = write_with_retry(
+            policy,
+            || {
+                writes += 1;
+                Err(os(libc::ENOBUFS))
+            },
+            |d| sleeps.push(d),
+        );
+        assert_eq!(result, Err(BusError::QueueFull { attempts: 3 }));
+        assert_eq!((writes, sleeps.len()), (3, 2));
+        assert!(sleeps.iter().all(|&d| d == Duration::from_micros(7)));
+
+        // Transient then success.
+        let mut script = vec![Err(os(libc::EAGAIN)), Err(os(libc::ENOBUFS)), Ok(())].into_iter();
+        let result = write_with_retry(policy, || script.next().unwrap_or(Ok(())), |_| {});
+        assert_eq!(result, Ok(()));
+
+        // Not transient: no retry.
+        let mut writes = 0;
+        let result = write_with_retry(
+            policy,
+            || {
+                writes += 1;
+                Err(os(libc::ENETDOWN))
+            },
+            |_| {},
+        );
+        assert_eq!((result, writes), (Err(BusError::InterfaceDown), 1));
+
+        // max_attempts 0 still writes once.
+        let mut writes = 0;
+        let zero = RetryPolicy {
+            max_attempts: 0,
+            delay: Duration::ZERO,
+        };
+        let _ = write_with_retry(
+            zero,
+            || {
+                writes += 1;
+                Err(os(libc::ENOBUFS))
+            },
+            |_| {},
+        );
+        assert_eq!(writes, 1);
+
+        // EINTR exhausting the attempts is reported as retryable, not as an I/O failure.
+        let result = write_with_retry(policy, || Err(os(libc::EINTR)), |_| {});
+        assert_eq!(result, Err(BusError::WouldBlock));
+    }
+
+    #[test]
+    fn bus_off_tracking_from_error_frames() {
+        use socketcan::errors::{CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED};
+        assert!(next_bus_off_state(false, CAN_ERR_BUSOFF));
+        assert!(next_bus_off_state(true, CAN_ERR_CRTL));
+        assert!(!next_bus_off_state(true, CAN_ERR_RESTARTED));
+        assert!(!next_bus_off_state(false, CAN_ERR_CRTL));
+    }
+
+    #[test]
+    fn socketcan_frames_are_built_and_checked() {
+        use socketcan::{EmbeddedFrame, Id, StandardId};
+        let frame = SocketCanBus::make_frame(0x120, &[1, 2, 3]).expect("valid");
+        assert_eq!(
+            frame.id(),
+            Id::Standard(StandardId::new(0x120).expect("id"))
+        );
+        assert_eq!(frame.data(), &[1, 2, 3]);
+        let ext = SocketCanBus::make_frame(0x1234_5678 | CAN_EFF_FLAG, &[]).expect("valid");
+        assert!(ext.is_extended());
+        assert!(SocketCanBus::make_frame(0x800, &[]).is_err());
+        assert!(SocketCanBus::make_frame(0x120, &[0; 9]).is_err());
+    }
+
+    /// This machine has no CAN in its kernel: opening must fail cleanly and be classified as
+    /// fatal, not panic. (On a machine with vcan the open may succeed; then nothing to check.)
+    #[test]
+    fn opening_a_missing_interface_is_a_fatal_error() {
+        match SocketCanBus::open("flydnotacan0", RetryPolicy::default()) {
+            Ok(_) => panic!("an interface that does not exist opened"),
+            Err(e) => assert!(e.is_fatal(), "{e:?}"),
+        }
+    }
+
+    #[test]
+    fn memory_bus_records_with_injected_time_and_shares_state() {
+        let clock = ManualClock::new(Duration::from_millis(1000));
+        let handle = MemoryBus::new(clock.clone());
+        let mut bus: Box<dyn CanBus> = Box::new(handle.clone());
+
+        bus.send(0x120, &[1, 2]).expect("sent");
+        clock.advance(Duration::from_millis(20));
+        bus.send(0x121, &[3]).expect("sent");
+
+        assert_eq!(
+            handle.frames(),
+            vec![
+                RecordedFrame {
+                    timestamp: Duration::from_millis(1000),
+                    id: 0x120,
+                    data: vec![1, 2]
+                },
+                RecordedFrame {
+                    timestamp: Duration::from_millis(1020),
+                    id: 0x121,
+                    data: vec![3]
+                },
+            ]
+        );
+        assert_eq!(handle.take_frames().len(), 2);
+        assert!(handle.frames().is_empty());
+    }
+
+    #[test]
+    fn memory_bus_simulates_failures() {
+        let handle = MemoryBus::new(|| Duration::ZERO);
+        let mut bus = handle.clone();
+        handle.fail_next(BusError::QueueFull { attempts: 3 });
+        handle.fail_next(BusError::BusOff);
+        assert_eq!(
+            bus.send(0x120, &[]),
+            Err(BusError::QueueFull { attempts: 3 })
+        );
+        assert_eq!(bus.send(0x120, &[]), Err(BusError::BusOff));
+        assert_eq!(bus.send(0x120, &[]), Ok(()));
+
+        handle.set_failing(Some(BusError::InterfaceDown));
+        assert_eq!(bus.send(0x120, &[]), Err(BusError::InterfaceDown));
+        assert_eq!(bus.send(0x120, &[]), Err(BusError::InterfaceDown));
+        handle.set_failing(None);
+        assert_eq!(bus.send(0x120, &[]), Ok(()));
+
+        assert_eq!(
+            bus.send(0x800, &[]),
+            Err(BusError::InvalidFrame { id: 0x800, len: 0 })
+        );
+        assert_eq!(handle.frames().len(), 2);
+        assert_eq!(handle.attempts(), 7);
+    }
+
+    #[test]
+    fn candump_bus_writes_replayable_lines() {
+        let clock = ManualClock::new(Duration::new(1_700_000_000, 123_456_000));
+        let mut bus = CandumpLogBus::new(Vec::new(), "vcan0", clock.clone());
+        bus.send(0x120, &[1, 2, 3, 4, 5, 6, 7, 8]).expect("written");
+        clock.advance(Duration::from_millis(20));
+        bus.send(0x121, &[0xAB; 8]).expect("written");
+        assert!(bus.send(0x120, &[0; 9]).is_err());
+
+        let text = String::from_utf8(bus.into_inner()).expect("utf8");
+        assert_eq!(
+            text,
+            "(1700000000.123456) vcan0 120#0102030405060708\n\
+             (1700000000.143456) vcan0 121#ABABABABABABABAB\n"
+        );
+        let parsed: Vec<_> = text
+            .lines()
+            .map(|l| parse_candump_line(l).expect("parses"))
+            .collect();
+        assert_eq!(parsed[1].2, 0x121);
+        assert!((parsed[1].0 - parsed[0].0 - 0.020).abs() < 1e-6);
+    }
+
+    #[test]
+    fn candump_bus_classifies_write_errors() {
+        struct Full;
+        impl Write for Full {
+            fn write(&mut self, _: &[u8]) -> io::Result<usize> {
+                Err(io::Error::from_raw_os_error(libc::ENOSPC))
+            }
+            fn flush(&mut self) -> io::Result<()> {
+                Ok(())
+            }
+        }
+        let mut bus = CandumpLogBus::new(Full, "vcan0", SystemClock);
+        let err = bus.send(0x120, &[]).expect_err("disk full");
+        assert!(err.is_fatal(), "{err:?}");
+    }
+}

@@ -1,0 +1,772 @@
+//! From global warning to CLEAR / SLOW / STOP: a pure state machine.
+//!
+//! No clock, no I/O: the caller passes the monotonic time of each snapshot, so every behaviour
+//! is reproducible in a test.
+//!
+//! # Rules
+//! Let `w` be the global warning (dimensionless danger, the mean fly warning; larger = more
+//! dangerous) and its *level* be STOP if `w >= stop_threshold`, SLOW if `w >= slow_threshold`,
+//! else CLEAR.
+//!
+//! 1. **Escalation is immediate**: a level above the current command becomes the command at once.
+//! 2. **Release needs time** (hysteresis + hold): STOP is left only once `w` has stayed below
+//!    `stop_threshold * release_ratio` *continuously* for `stop_hold`, with perception healthy
+//!    throughout; SLOW likewise with `slow_threshold * release_ratio` and `slow_hold`. Both holds
+//!    must be > 0, so one good snapshot never releases anything. The steps are evaluated
+//!    together: after a long calm, STOP may go straight to CLEAR.
+//! 3. **Faults fail safe**: when any fault bit in `fault_mask` is set, or `w` is NaN, infinite or
+//!    negative (it cannot be a mean of warnings, so the perception output is not trustworthy),
+//!    the command becomes `max(current, safe_command)`: a STOP is never downgraded by a fault.
+//!    A finite warning during a fault may still raise the command, never lower it. Snapshots
+//!    taken during a fault do not count towards a hold: after recovery the holds start again.
+//! 4. **Start-up is a fault**: before the first healthy snapshots there is no evidence that the
+//!    road is clear, so the decider starts at `safe_command` (reason FAULT_FALLBACK) and reaches
+//!    CLEAR only through rule 2.
+//! 5. **Shutdown** latches `max(current, safe_command)` with reason SHUTDOWN.
+//!
+//! The reason is PERCEPTION when the warning alone justifies the command, FAULT_FALLBACK while a
+//! fault is active or while a command entered because of one is still held, SHUTDOWN at the end.
+
+use std::time::Duration;
+
+use thiserror::Error;
+
+use crate::can::messages::{Command, CommandMsg, CommandReason, FaultBits};
+
+/// Tuning of the [`Decider`]. The defaults are placeholders until tuned on the vehicle: the
+/// warning scale depends on the perception settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DecisionConfig {
+    /// Warning at or above which SLOW is commanded.
+    pub slow_threshold: f64,
+    /// Warning at or above which STOP is commanded.
+    pub stop_threshold: f64,
+    /// Release level = threshold × ratio, in (0, 1]: the gap is the hysteresis.
+    pub release_ratio: f64,
+    /// How long the warning must stay below the SLOW release level before SLOW is released.
+    pub slow_hold: Duration,
+    /// How long the warning must stay below the STOP release level before STOP is released.
+    pub stop_hold: Duration,
+    /// Command while perception is faulty: SLOW or STOP (never CLEAR).
+    pub safe_command: Command,
+    /// Fault bits that make perception untrusted (default: all).
+    pub fault_mask: FaultBits,
+    /// Requested deceleration for SLOW, m/s².
+    pub slow_decel: f64,
+    /// Requested deceleration for STOP, m/s².
+    pub stop_decel: f64,
+}
+
+impl Default for DecisionConfig {
+    fn default() -> Self {
+        Self {
+            slow_threshold: 0.3,
+            stop_threshold: 0.6,
+            release_ratio: 0.8,
+            slow_hold: Duration::from_millis(500),
+            stop_hold: Duration::from_millis(1000),
+            safe_command: Command::Slow,
+            fault_mask: FaultBits::all(),
+            slow_decel: 1.5,
+            stop_decel: 4.0,
+        }
+    }
+}
+
+/// A [`DecisionConfig`] the decider refuses.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+pub enum DecisionConfigError {
+    #[error("thresholds must be finite with 0 < slow ({slow}) <= stop ({stop})")]
+    Thresholds { slow: f64, stop: f64 },
+    #[error("release_ratio must be in (0, 1], got {0}")]
+    ReleaseRatio(f64),
+    #[error("hold times must be > 0 (one snapshot must never release a command)")]
+    ZeroHold,
+    #[error("safe_command must be SLOW or STOP")]
+    UnsafeFallback,
+    #[error("deceleration for {command} must be finite and >= 0, got {value}")]
+    Decel { command: Command, value: f64 },
+}
+
+impl DecisionConfig {
+    pub fn validate(&self) -> Result<(), DecisionConfigError> {
+        let (slow, stop) = (self.slow_threshold, self.stop_threshold);
+        if !(slow.is_finite() && stop.is_finite() && slow > 0.0 && slow <= stop) {
+            return Err(DecisionConfigError::Thresholds { slow, stop });
+        }
+        if !(self.release_ratio > 0.0 && self.release_ratio <= 1.0) {
+            return Err(DecisionConfigError::ReleaseRatio(self.release_ratio));
+        }
+        if self.slow_hold.is_zero() || self.stop_hold.is_zero() {
+            return Err(DecisionConfigError::ZeroHold);
+        }
+        if self.safe_command == Command::Clear {
+            return Err(DecisionConfigError::UnsafeFallback);
+        }
+        for (command, value) in [
+            (Command::Slow, self.slow_decel),
+            (Command::Stop, self.stop_decel),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(DecisionConfigError::Decel { command, value });
+            }
+        }
+        Ok(())
+    }
+
+    /// The deceleration requested with `command` (0 for CLEAR).
+    pub fn decel_for(&self, command: Command) -> f64 {
+        match command {
+            Command::Clear => 0.0,
+            Command::Slow => self.slow_decel,
+            Command::Stop => self.stop_decel,
+        }
+    }
+}
+
+/// One perception snapshot as the decider sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DecisionInput {
+    /// The global warning; NaN, ±inf and negative values count as a fault.
+    pub global_warning: f64,
+    /// Active faults; those in [`DecisionConfig::fault_mask`] make perception untrusted.
+    pub faults: FaultBits,
+}
+
+impl DecisionInput {
+    pub fn healthy(global_warning: f64) -> Self {
+        Self {
+            global_warning,
+            faults: FaultBits::empty(),
+        }
+    }
+}
+
+/// What to send, and what to log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decision {
+    pub command: Command,
+    pub reason: CommandReason,
+    /// m/s², from the config for `command`.
+    pub requested_decel: f64,
+    /// The command differs from the previous decision's (log it).
+    pub changed: bool,
+    pub previous: Command,
+    /// Perception was untrusted for this snapshot (always `false` once shut down: the input
+    /// is ignored then).
+    pub fault: bool,
+}
+
+impl Decision {
+    /// The `FLYD_Command` frame content for this decision.
+    pub fn command_msg(&self, global_warning: f64) -> CommandMsg {
+        CommandMsg {
+            command: self.command,
+            requested_decel: self.requested_decel,
+            global_warning,
+            reason: self.reason,
+        }
+    }
+}
+
+/// The state machine; see the module docs for the rules.
+#[derive(Debug, Clone)]
+pub struct Decider {
+    config: DecisionConfig,
+    command: Command,
+    reason: CommandReason,
+    /// Since when (healthy snapshots only) the warning is below the SLOW release level.
+    below_slow_release_since: Option<Duration>,
+    /// Since when (healthy snapshots only) the warning is below the STOP release level.
+    below_stop_release_since: Option<Duration>,
+    shut_down: bool,
+}
+
+impl Decider {
+    pub fn new(config: DecisionConfig) -> Result<Self, DecisionConfigError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            command: config.safe_command,
+            reason: CommandReason::FaultFallback,
+            below_slow_release_since: None,
+            below_stop_release_since: None,
+            shut_down: false,
+        })
+    }
+
+    pub fn config(&self) -> &DecisionConfig {
+        &self.config
+    }
+
+    /// The current command (before any update: the safe command).
+    pub fn command(&self) -> Command {
+        self.command
+    }
+
+    /// Feeds one snapshot taken at monotonic time `now`. Times must not go backwards; if they
+    /// do, elapsed time counts as zero (holds get longer, never shorter).
+    pub fn update(&mut self, input: DecisionInput, now: Duration) -> Decision {
+        let previous = self.command;
+        if self.shut_down {
+            return self.decision(previous, false);
+        }
+        let cfg = self.config;
+        let w = input.global_warning;
+        let warning_valid = w.is_finite() && w >= 0.0;
+        let fault = !warning_valid || input.faults.intersects(cfg.fault_mask);
+        let level = if warning_valid {
+            self.level(w)
+        } else {
+            Command::Clear
+        };
+
+        if fault {
+            // Untrusted snapshots are no evidence of a clear road: holds restart after recovery.
+            self.below_slow_release_since = None;
+            self.below_stop_release_since = None;
+            self.command = self.command.max(cfg.safe_command).max(level);
+            self.reason = CommandReason::FaultFallback;
+        } else {
+            Self::track(
+                &mut self.below_stop_release_since,
+                w < cfg.stop_threshold * cfg.release_ratio,
+                now,
+            );
+            Self::track(
+                &mut self.below_slow_release_since,
+                w < cfg.slow_threshold * cfg.release_ratio,
+                now,
+            );
+            let mut command = self.command.max(level);
+            if command == Command::Stop
+                && Self::held(self.below_stop_release_since, cfg.stop_hold, now)
+            {
+                command = Command::Slow;
+            }
+            if command == Command::Slow
+                && Self::held(self.below_slow_release_since, cfg.slow_hold, now)
+            {
+                command = Command::Clear;
+            }
+            // Release levels are below the thresholds, so this cannot bite; it states the
+            // invariant that a release never undercuts what the warning asks for.
+            command = command.max(level);
+            self.command = command;
+            if level >= command {
+                self.reason = CommandReason::Perception;
+            }
+            // Otherwise the command is held above the warning's level: keep the reason that
+            // brought it there (hysteresis after PERCEPTION, hold after FAULT_FALLBACK).
+        }
+        self.decision(previous, fault)
+    }
+
+    /// The final decision: `max(current, safe_command)`, reason SHUTDOWN, latched (later
+    /// updates return it unchanged).
+    pub fn shutdown(&mut self) -> Decision {
+        let previous = self.command;
+        self.command = self.command.max(self.config.safe_command);
+        self.reason = CommandReason::Shutdown;
+        self.shut_down = true;
+        self.decision(previous, false)
+    }
+
+    fn level(&self, w: f64) -> Command {
+        if w >= self.config.stop_threshold {
+            Command::Stop
+        } else if w >= self.config.slow_threshold {
+            Command::Slow
+        } else {
+            Command::Clear
+        }
+    }
+
+    fn track(since: &mut Option<Duration>, below: bool, now: Duration) {
+        if !below {
+            *since = None;
+        } else if since.is_none() {
+            *since = Some(now);
+        }
+    }
+
+    fn held(since: Option<Duration>, hold: Duration, now: Duration) -> bool {
+        since.is_some_and(|t| now.saturating_sub(t) >= hold)
+    }
+
+    fn decision(&self, previous: Command, fault: bool) -> Decision {
+        Decision {
+            command: self.command,
+            reason: self.reason,
+            requested_decel: self.config.decel_for(self.command),
+            changed: self.command != previous,
+            previous,
+            fault,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use Command::{Clear, Slow, Stop};
+
+    const NONE: FaultBits = FaultBits::empty();
+    const STALE: FaultBits = FaultBits::SNAPSHOT_STALE;
+
+    /// Thresholds 0.3 / 0.6, ratio 0.5 (release below 0.15 / 0.3), holds 200 / 500 ms.
+    fn cfg() -> DecisionConfig {
+        DecisionConfig {
+            slow_threshold: 0.3,
+            stop_threshold: 0.6,
+            release_ratio: 0.5,
+            slow_hold: Duration::from_millis(200),
+            stop_hold: Duration::from_millis(500),
+            safe_command: Slow,
+            fault_mask: FaultBits::all(),
+            slow_decel: 1.5,
+            stop_decel: 4.0,
+        }
+    }
+
+    /// Runs `steps` of (ms, warning, faults) through a fresh decider and compares the commands;
+    /// on mismatch, prints the whole trace.
+    fn check_with(
+        config: DecisionConfig,
+        steps: &[(u64, f64, FaultBits)],
+        expected: &[Command],
+    ) -> Vec<Decision> {
+        assert_eq!(steps.len(), expected.len(), "test table is malformed");
+        let mut decider = Decider::new(config).expect("valid config");
+        let decisions: Vec<Decision> = steps
+            .iter()
+            .map(|&(ms, w, faults)| {
+                decider.update(
+                    DecisionInput {
+                        global_warning: w,
+                        faults,
+                    },
+                    Duration::from_millis(ms),
+                )
+            })
+            .collect();
+        let got: Vec<Command> = decisions.iter().map(|d| d.command).collect();
+        if got != expected {
+            let trace: Vec<String> = steps
+                .iter()
+                .zip(&got)
+                .zip(expected)
+                .map(|((s, g), e)| {
+                    format!(
+                        "t={:>5} w={:<6} faults={:<20} got {:<5} want {}{}",
+                        s.0,
+                        s.1,
+                        s.2.to_string(),
+                        g.name(),
+                        e.name(),
+                        if g == e { "" } else { "   <--" }
+                    )
+                })
+                .collect();
+            panic!("command sequence differs:\n{}", trace.join("\n"));
+        }
+        decisions
+    }
+
+    fn check(steps: &[(u64, f64, FaultBits)], expected: &[Command]) -> Vec<Decision> {
+        check_with(cfg(), steps, expected)
+    }
+
+    /// Three calm snapshots that take a fresh decider from its start-up SLOW to CLEAR.
+    const WARM: [(u64, f64, FaultBits); 3] = [(0, 0.0, NONE), (100, 0.0, NONE), (200, 0.0, NONE)];
+    const WARM_CMDS: [Command; 3] = [Slow, Slow, Clear];
+
+    fn warm_then(steps: &[(u64, f64, FaultBits)], expected: &[Command]) -> Vec<Decision> {
+        let all_steps: Vec<_> = WARM.iter().chain(steps).copied().collect();
+        let all_expected: Vec<_> = WARM_CMDS.iter().chain(expected).copied().collect();
+        check(&all_steps, &all_expected)[WARM.len()..].to_vec()
+    }
+
+    #[test]
+    fn starts_safe_and_clears_only_after_the_hold() {
+        let d = check(
+            &[
+                (0, 0.0, NONE),
+                (100, 0.0, NONE),
+                (199, 0.0, NONE),
+                (200, 0.0, NONE),
+            ],
+            &[Slow, Slow, Slow, Clear],
+        );
+        assert_eq!(d[0].reason, CommandReason::FaultFallback);
+        assert_eq!(d[2].reason, CommandReason::FaultFallback);
+        assert!(!d[2].changed);
+        assert_eq!(d[3].reason, CommandReason::Perception);
+        assert!(d[3].changed);
+        assert_eq!(d[3].requested_decel, 0.0);
+    }
+
+    #[test]
+    fn rise_to_slow() {
+        let d = warm_then(
+            &[(300, 0.29, NONE), (400, 0.3, NONE), (500, 0.59, NONE)],
+            &[Clear, Slow, Slow],
+        );
+        assert!(d[1].changed && d[1].previous == Clear);
+        assert_eq!(d[1].reason, CommandReason::Perception);
+        assert_eq!(d[1].requested_decel, 1.5);
+    }
+
+    #[test]
+    fn rise_to_stop_directly_and_through_slow() {
+        warm_then(&[(300, 0.6, NONE)], &[Stop]);
+        let d = warm_then(
+            &[(300, 0.4, NONE), (400, 0.7, NONE), (500, 5.0, NONE)],
+            &[Slow, Stop, Stop],
+        );
+        assert_eq!(d[1].requested_decel, 4.0);
+        assert!(d[1].changed && !d[2].changed);
+    }
+
+    #[test]
+    fn hysteresis_keeps_stop_and_slow_between_release_level_and_threshold() {
+        // STOP, then w just under the STOP threshold (0.59) and just above its release level
+        // (0.3) for a long time: STOP stays. Then SLOW band above SLOW release (0.15): SLOW
+        // stays.
+        let mut steps = vec![(300, 0.8, NONE)];
+        let mut want = vec![Stop];
+        for t in (400..=3000).step_by(100) {
+            steps.push((t, if t % 200 == 0 { 0.59 } else { 0.3 }, NONE));
+            want.push(Stop);
+        }
+        steps.extend([(3100, 0.29, NONE), (3600, 0.29, NONE)]);
+        want.extend([Stop, Slow]);
+        for t in (3700..=6000).step_by(100) {
+            steps.push((t, if t % 200 == 0 { 0.29 } else { 0.15 }, NONE));
+            want.push(Slow);
+        }
+        let d = warm_then(&steps, &want);
+        assert!(d.iter().all(|d| d.reason == CommandReason::Perception));
+    }
+
+    #[test]
+    fn stop_needs_continuous_calm_for_the_whole_hold() {
+        warm_then(
+            &[
+                (300, 0.9, NONE),  // STOP
+                (400, 0.0, NONE),  // one good snapshot: no release
+                (800, 0.0, NONE),  // 400 ms < 500 ms hold
+                (850, 0.45, NONE), // above release level 0.3: hold restarts
+                (900, 0.1, NONE),  // calm again from 900
+                (1300, 0.1, NONE), // 400 ms
+                (1399, 0.1, NONE), // 499 ms
+                (1400, 0.1, NONE), // 500 ms: STOP released; SLOW calm since 900 too -> CLEAR
+            ],
+            &[Stop, Stop, Stop, Stop, Stop, Stop, Stop, Clear],
+        );
+    }
+
+    #[test]
+    fn stop_releases_to_slow_when_warning_is_still_in_the_slow_band() {
+        warm_then(
+            &[
+                (300, 0.9, NONE),
+                (400, 0.2, NONE), // below STOP release (0.3), above SLOW release (0.15)
+                (900, 0.2, NONE), // STOP hold done -> SLOW
+                (1000, 0.1, NONE), // below SLOW release from 1000
+                (1199, 0.1, NONE),
+                (1200, 0.1, NONE), // 200 ms -> CLEAR
+            ],
+            &[Stop, Stop, Slow, Slow, Slow, Clear],
+        );
+    }
+
+    #[test]
+    fn slow_hold() {
+        warm_then(
+            &[
+                (300, 0.35, NONE),
+                (350, 0.1, NONE),
+                (500, 0.1, NONE),
+                (520, 0.2, NONE), // back into the SLOW band: hold restarts
+                (600, 0.1, NONE),
+                (799, 0.1, NONE),
+                (800, 0.1, NONE),
+            ],
+            &[Slow, Slow, Slow, Slow, Slow, Slow, Clear],
+        );
+    }
+
+    #[test]
+    fn fault_gives_safe_command_and_recovery_needs_the_hold() {
+        let d = warm_then(
+            &[
+                (300, 0.0, STALE),
+                (
+                    400,
+                    0.0,
+                    FaultBits::LEFT_CAMERA_STALE | FaultBits::STEREO_SKEW,
+                ),
+                (500, 0.0, NONE), // healthy again: calm counted from here
+                (600, 0.0, NONE),
+                (699, 0.0, NONE),
+                (700, 0.0, NONE), // 200 ms of healthy calm -> CLEAR
+            ],
+            &[Slow, Slow, Slow, Slow, Slow, Clear],
+        );
+        assert!(d[0].fault && d[0].changed);
+        assert_eq!(d[0].reason, CommandReason::FaultFallback);
+        assert!(!d[2].fault);
+        assert_eq!(
+            d[4].reason,
+            CommandReason::FaultFallback,
+            "still held because of the fault"
+        );
+        assert_eq!(d[5].reason, CommandReason::Perception);
+    }
+
+    #[test]
+    fn calm_before_a_fault_does_not_count_after_it() {
+        warm_then(
+            &[
+                (300, 0.35, NONE), // SLOW
+                (400, 0.0, NONE),  // calm from 400
+                (550, 0.0, STALE), // fault resets the hold
+                (600, 0.0, NONE),  // calm from 600
+                (700, 0.0, NONE),  // would be 300 ms since 400, but only 100 since 600
+                (800, 0.0, NONE),
+            ],
+            &[Slow, Slow, Slow, Slow, Slow, Clear],
+        );
+    }
+
+    #[test]
+    fn fault_while_stopping_keeps_stop() {
+        let d = warm_then(
+            &[
+                (300, 0.9, NONE),
+                (400, 0.0, STALE),
+                (500, f64::NAN, FaultBits::CAMERA_ERROR),
+                (600, 0.0, NONE),
+                (1000, 0.0, NONE),
+                (1100, 0.0, NONE), // 500 ms of healthy calm since 600 -> CLEAR
+            ],
+            &[Stop, Stop, Stop, Stop, Stop, Clear],
+        );
+        assert_eq!(d[1].reason, CommandReason::FaultFallback);
+        assert_eq!(d[1].requested_decel, 4.0);
+    }
+
+    #[test]
+    fn high_warning_during_a_fault_still_escalates() {
+        warm_then(&[(300, 0.0, STALE), (400, 0.9, STALE)], &[Slow, Stop]);
+    }
+
+    #[test]
+    fn fault_stop_as_safe_command() {
+        let config = DecisionConfig {
+            safe_command: Stop,
+            ..cfg()
+        };
+        check_with(
+            config,
+            &[
+                (0, 0.0, NONE),
+                (500, 0.0, NONE),
+                (600, 0.0, STALE),
+                (700, 0.0, NONE),
+            ],
+            &[Stop, Clear, Stop, Stop],
+        );
+    }
+
+    #[test]
+    fn non_finite_or_negative_warning_is_a_fault() {
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.1] {
+            let d = warm_then(&[(300, bad, NONE), (400, 0.0, NONE)], &[Slow, Slow]);
+            assert!(d[0].fault, "{bad}");
+            assert_eq!(d[0].reason, CommandReason::FaultFallback, "{bad}");
+            assert!(!d[1].fault);
+        }
+        // -0.0 is a valid (zero) warning.
+        let d = warm_then(&[(300, -0.0, NONE)], &[Clear]);
+        assert!(!d[0].fault);
+    }
+
+    #[test]
+    fn faults_outside_the_mask_are_ignored() {
+        let config = DecisionConfig {
+            fault_mask: FaultBits::all() & !FaultBits::CAN_TX_ERROR,
+            ..cfg()
+        };
+        check_with(
+            config,
+            &[
+                (0, 0.0, NONE),
+                (200, 0.0, FaultBits::CAN_TX_ERROR),
+                (300, 0.0, FaultBits::CAN_TX_ERROR | STALE),
+            ],
+            &[Slow, Clear, Slow],
+        );
+    }
+
+    #[test]
+    fn time_going_backwards_never_shortens_a_hold() {
+        warm_then(
+            &[
+                (1000, 0.9, NONE),
+                (1100, 0.0, NONE),
+                (900, 0.0, NONE),
+                (1599, 0.0, NONE),
+            ],
+            &[Stop, Stop, Stop, Stop],
+        );
+    }
+
+    #[test]
+    fn shutdown_latches_the_safe_command() {
+        let mut decider = Decider::new(cfg()).expect("valid");
+        for ms in [0, 100, 200] {
+            decider.update(DecisionInput::healthy(0.0), Duration::from_millis(ms));
+        }
+        assert_eq!(decider.command(), Clear);
+        let d = decider.shutdown();
+        assert_eq!(
+            (d.command, d.reason, d.changed),
+            (Slow, CommandReason::Shutdown, true)
+        );
+        let later = decider.update(DecisionInput::healthy(0.0), Duration::from_secs(10));
+        assert_eq!(
+            (later.command, later.reason),
+            (Slow, CommandReason::Shutdown)
+        );
+
+        // A STOP stays a STOP at shutdown.
+        let mut decider = Decider::new(cfg()).expect("valid");
+        decider.update(DecisionInput::healthy(0.9), Duration::ZERO);
+        assert_eq!(decider.shutdown().command, Stop);
+    }
+
+    #[test]
+    fn command_msg_carries_the_decision() {
+        let mut decider = Decider::new(cfg()).expect("valid");
+        let d = decider.update(DecisionInput::healthy(0.9), Duration::ZERO);
+        let msg = d.command_msg(0.9);
+        assert_eq!(
+            (
+                msg.command,
+                msg.requested_decel,
+                msg.global_warning,
+                msg.reason
+            ),
+            (Stop, 4.0, 0.9, CommandReason::Perception)
+        );
+    }
+
+    #[test]
+    fn config_validation() {
+        let bad = [
+            DecisionConfig {
+                slow_threshold: 0.7,
+                ..cfg()
+            },
+            DecisionConfig {
+                stop_threshold: f64::NAN,
+                ..cfg()
+            },
+            DecisionConfig {
+                slow_threshold: 0.0,
+                ..cfg()
+            },
+            DecisionConfig {
+                release_ratio: 1.5,
+                ..cfg()
+            },
+            DecisionConfig {
+                release_ratio: 0.0,
+                ..cfg()
+            },
+            DecisionConfig {
+                stop_hold: Duration::ZERO,
+                ..cfg()
+            },
+            DecisionConfig {
+                safe_command: Clear,
+                ..cfg()
+            },
+            DecisionConfig {
+                stop_decel: -1.0,
+                ..cfg()
+            },
+        ];
+        for config in bad {
+            assert!(Decider::new(config).is_err(), "{config:?}");
+        }
+        assert!(Decider::new(DecisionConfig::default()).is_ok());
+    }
+
+    /// Invariants over a long pseudo-random run, checked against the history directly:
+    /// - never below the warning's own level while healthy,
+    /// - never below the safe command while faulty,
+    /// - any release from STOP (or SLOW) is preceded by `hold` of healthy snapshots all below
+    ///   that command's release level.
+    #[test]
+    fn invariants_hold_on_a_random_run() {
+        let config = cfg();
+        let mut decider = Decider::new(config).expect("valid");
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut rnd = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut history: Vec<(Duration, f64, bool)> = Vec::new();
+        let mut t = Duration::ZERO;
+        let mut previous = decider.command();
+        for _ in 0..20_000 {
+            t += Duration::from_millis(10 + rnd() % 90);
+            let r = rnd();
+            let w = match r % 10 {
+                0 => 0.7,
+                1..=2 => 0.2 + (r % 100) as f64 / 1000.0,
+                _ => (r % 140) as f64 / 1000.0,
+            };
+            let faults = if rnd() % 50 == 0 { STALE } else { NONE };
+            let input = DecisionInput {
+                global_warning: w,
+                faults,
+            };
+            let d = decider.update(input, t);
+            let fault = !faults.is_empty();
+            history.push((t, w, fault));
+
+            if fault {
+                assert!(d.command >= config.safe_command, "fault at {t:?}");
+            } else {
+                assert!(d.command >= decider.level(w), "below level at {t:?}");
+            }
+            for (released, threshold, hold) in [
+                (Stop, config.stop_threshold, config.stop_hold),
+                (Slow, config.slow_threshold, config.slow_hold),
+            ] {
+                if previous >= released && d.command < released {
+                    // The calm streak: the newest snapshots, all healthy and below the release
+                    // level. The release is legal only if the streak began `hold` ago or more.
+                    let release = threshold * config.release_ratio;
+                    let streak_start = history
+                        .iter()
+                        .rev()
+                        .take_while(|(_, hw, hf)| *hw < release && !hf)
+                        .last()
+                        .map(|(ht, _, _)| *ht);
+                    assert!(
+                        streak_start.is_some_and(|s| t - s >= hold),
+                        "{released} released at {t:?}, calm only since {streak_start:?}"
+                    );
+                }
+            }
+            previous = d.command;
+        }
+    }
+}

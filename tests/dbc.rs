@@ -1,0 +1,592 @@
+//! Holds the Rust encoder to `config/flyd.dbc`, the CAN contract.
+//!
+//! Everything about the layout (start bits, lengths, byte order, signedness, factors, offsets,
+//! ranges, value tables, IDs, cycle times, Data IDs) is read from the DBC with can-dbc; the test
+//! only states *physical* values and enum *names*. A change on one side without the other fails
+//! here.
+
+use std::collections::BTreeSet;
+use std::time::Duration;
+
+use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal, ValueDescription, ValueType};
+use flyd::can::crc::e2e_crc;
+use flyd::can::messages::{
+    AliveCounter, CanMessage, Command, CommandMsg, CommandReason, FaultBits, ObstacleMsg, State,
+    StatusMsg,
+};
+use flyd::can::{CanConfig, MessageConfig};
+
+fn load() -> Dbc {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/flyd.dbc");
+    let text = std::fs::read_to_string(path).expect("config/flyd.dbc is readable");
+    Dbc::try_from(text.as_str()).expect("config/flyd.dbc parses")
+}
+
+fn message<'a>(dbc: &'a Dbc, name: &str) -> &'a Message {
+    dbc.messages
+        .iter()
+        .find(|m| m.name == name)
+        .unwrap_or_else(|| panic!("message {name} missing from the DBC"))
+}
+
+fn signal<'a>(msg: &'a Message, name: &str) -> &'a Signal {
+    msg.signals
+        .iter()
+        .find(|s| s.name == name)
+        .unwrap_or_else(|| panic!("signal {}.{name} missing from the DBC", msg.name))
+}
+
+fn attr_u64(value: Option<&AttributeValue>, what: &str) -> u64 {
+    match value {
+        Some(AttributeValue::Uint(v)) => *v,
+        Some(AttributeValue::Int(v)) => u64::try_from(*v).expect("non-negative"),
+        Some(AttributeValue::Double(v)) if v.fract() == 0.0 && *v >= 0.0 => *v as u64,
+        other => panic!("{what}: expected an integer attribute, got {other:?}"),
+    }
+}
+
+fn numeric(v: &can_dbc::NumericValue) -> f64 {
+    match v {
+        can_dbc::NumericValue::Uint(u) => *u as f64,
+        can_dbc::NumericValue::Int(i) => *i as f64,
+        can_dbc::NumericValue::Double(d) => *d,
+    }
+}
+
+/// The raw value of `sig` in `data`, extracted by the DBC's definition of an Intel signal:
+/// bits `start_bit .. start_bit + size` of the frame read as a little-endian integer.
+fn raw_value(sig: &Signal, data: &[u8; 8]) -> i64 {
+    assert_eq!(
+        sig.byte_order,
+        ByteOrder::LittleEndian,
+        "{}: the contract is Intel only",
+        sig.name
+    );
+    assert!(
+        sig.size >= 1 && sig.start_bit + sig.size <= 64,
+        "{}: outside 8 bytes",
+        sig.name
+    );
+    let word = u64::from_le_bytes(*data);
+    let mask = if sig.size == 64 {
+        u64::MAX
+    } else {
+        (1u64 << sig.size) - 1
+    };
+    let raw = (word >> sig.start_bit) & mask;
+    match sig.value_type {
+        ValueType::Unsigned => raw as i64,
+        ValueType::Signed => {
+            let sign = 1u64 << (sig.size - 1);
+            if raw & sign != 0 {
+                (raw | !mask) as i64
+            } else {
+                raw as i64
+            }
+        }
+    }
+}
+
+fn physical(sig: &Signal, data: &[u8; 8]) -> f64 {
+    raw_value(sig, data) as f64 * sig.factor + sig.offset
+}
+
+/// The raw value the DBC's value table gives to `label` for `signal` of `msg`.
+fn value_of(dbc: &Dbc, msg: &Message, signal: &str, label: &str) -> i64 {
+    value_table(dbc, msg, signal)
+        .iter()
+        .find(|(_, l)| l == label)
+        .map(|(v, _)| *v)
+        .unwrap_or_else(|| panic!("{}.{signal}: no value named {label} in the DBC", msg.name))
+}
+
+fn value_table(dbc: &Dbc, msg: &Message, signal: &str) -> Vec<(i64, String)> {
+    dbc.value_descriptions
+        .iter()
+        .find_map(|vd| match vd {
+            ValueDescription::Signal {
+                message_id,
+                name,
+                value_descriptions,
+            } if *message_id == msg.id && name == signal => Some(
+                value_descriptions
+                    .iter()
+                    .map(|d| (d.id, d.description.clone()))
+                    .collect(),
+            ),
+            _ => None,
+        })
+        .unwrap_or_default()
+}
+
+fn data_id(dbc: &Dbc, msg: &Message) -> u16 {
+    let v = attr_u64(
+        dbc.message_attribute(msg.id, "FlydE2EDataID"),
+        &format!("{} FlydE2EDataID", msg.name),
+    );
+    u16::try_from(v).expect("Data ID fits 16 bits")
+}
+
+/// What a signal must read as in an encoded frame.
+#[derive(Debug, Clone, Copy)]
+enum Want {
+    /// This physical value (within a thousandth of a raw step).
+    Phys(f64),
+    /// The raw value the DBC value table names so.
+    Named(&'static str),
+    /// The E2E CRC of the frame, with the DBC's Data ID.
+    Crc,
+    /// The alive counter the frame was encoded with.
+    Counter,
+}
+
+struct Case {
+    message: &'static str,
+    counter: u8,
+    data: [u8; 8],
+    want: Vec<(&'static str, Want)>,
+}
+
+fn counter(v: u8) -> AliveCounter {
+    AliveCounter::new(v).expect("counter in range")
+}
+
+fn command_case(msg: CommandMsg, c: u8) -> Case {
+    Case {
+        message: CommandMsg::NAME,
+        counter: c,
+        data: msg.encode(counter(c)),
+        want: vec![
+            ("CRC8", Want::Crc),
+            ("AliveCounter", Want::Counter),
+            ("Command", Want::Named(msg.command.name())),
+            ("RequestedDecel", Want::Phys(msg.requested_decel)),
+            ("GlobalWarning", Want::Phys(msg.global_warning)),
+            ("CommandReason", Want::Named(msg.reason.name())),
+        ],
+    }
+}
+
+fn status_case(msg: StatusMsg, c: u8) -> Case {
+    Case {
+        message: StatusMsg::NAME,
+        counter: c,
+        data: msg.encode(counter(c)),
+        want: vec![
+            ("CRC8", Want::Crc),
+            ("AliveCounter", Want::Counter),
+            ("State", Want::Named(msg.state.name())),
+            ("FaultBits", Want::Phys(f64::from(msg.faults.bits()))),
+            (
+                "PerceptionAgeMs",
+                Want::Phys(msg.perception_age.as_millis() as f64),
+            ),
+            ("GenerationsPerSec", Want::Phys(msg.generations_per_sec)),
+            ("CamFpsLeft", Want::Phys(msg.cam_fps_left)),
+            ("CamFpsRight", Want::Phys(msg.cam_fps_right)),
+        ],
+    }
+}
+
+fn obstacle_case(msg: ObstacleMsg, c: u8) -> Case {
+    Case {
+        message: ObstacleMsg::NAME,
+        counter: c,
+        data: msg.encode(counter(c)),
+        want: vec![
+            ("CRC8", Want::Crc),
+            ("AliveCounter", Want::Counter),
+            (
+                "ObstacleValid",
+                Want::Named(if msg.valid { "VALID" } else { "NO_OBSTACLE" }),
+            ),
+            ("Distance", Want::Phys(msg.distance)),
+            ("Lateral", Want::Phys(msg.lateral)),
+            ("Confidence", Want::Phys(msg.confidence)),
+        ],
+    }
+}
+
+/// Distinct, representable values for every signal, several frames per message so that no
+/// signal is only ever checked at 0.
+fn cases() -> Vec<Case> {
+    vec![
+        command_case(
+            CommandMsg {
+                command: Command::Stop,
+                requested_decel: 4.25,
+                global_warning: 0.734,
+                reason: CommandReason::Perception,
+            },
+            5,
+        ),
+        command_case(
+            CommandMsg {
+                command: Command::Slow,
+                requested_decel: 1.5,
+                global_warning: 12.5,
+                reason: CommandReason::FaultFallback,
+            },
+            14,
+        ),
+        command_case(
+            CommandMsg {
+                command: Command::Clear,
+                requested_decel: 0.0,
+                global_warning: 0.001,
+                reason: CommandReason::Shutdown,
+            },
+            0,
+        ),
+        status_case(
+            StatusMsg {
+                state: State::Degraded,
+                faults: FaultBits::LEFT_CAMERA_STALE | FaultBits::CAN_TX_ERROR,
+                perception_age: Duration::from_millis(1234),
+                generations_per_sec: 118.0,
+                cam_fps_left: 29.5,
+                cam_fps_right: 30.0,
+            },
+            3,
+        ),
+        status_case(
+            StatusMsg {
+                state: State::Shutdown,
+                faults: FaultBits::all(),
+                perception_age: Duration::from_millis(65535),
+                generations_per_sec: 510.0,
+                cam_fps_left: 127.5,
+                cam_fps_right: 0.5,
+            },
+            14,
+        ),
+        status_case(
+            StatusMsg {
+                state: State::Init,
+                faults: FaultBits::SNAPSHOT_STALE,
+                perception_age: Duration::from_millis(7),
+                generations_per_sec: 2.0,
+                cam_fps_left: 0.0,
+                cam_fps_right: 15.0,
+            },
+            9,
+        ),
+        obstacle_case(
+            ObstacleMsg {
+                valid: true,
+                distance: 12.34,
+                lateral: -1.5,
+                confidence: 87.0,
+            },
+            1,
+        ),
+        obstacle_case(
+            ObstacleMsg {
+                valid: true,
+                distance: 655.35,
+                lateral: 327.67,
+                confidence: 100.0,
+            },
+            13,
+        ),
+        obstacle_case(ObstacleMsg::NONE, 0),
+    ]
+}
+
+#[test]
+fn encoder_writes_every_signal_where_the_dbc_says() {
+    let dbc = load();
+    let mut covered: BTreeSet<(String, String)> = BTreeSet::new();
+
+    for case in cases() {
+        let msg = message(&dbc, case.message);
+        let names_in_case: BTreeSet<&str> = case.want.iter().map(|(n, _)| *n).collect();
+        let names_in_dbc: BTreeSet<&str> = msg.signals.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(
+            names_in_case, names_in_dbc,
+            "{}: the encoder's signals and the DBC's differ",
+            msg.name
+        );
+
+        for (name, want) in &case.want {
+            let sig = signal(msg, name);
+            covered.insert((msg.name.clone(), sig.name.clone()));
+            let raw = raw_value(sig, &case.data);
+            let phys = physical(sig, &case.data);
+            let context = format!("{}.{name} in {:02X?} ({want:?})", msg.name, case.data);
+            match *want {
+                Want::Phys(v) => assert!(
+                    (phys - v).abs() <= sig.factor.abs() * 1e-3,
+                    "{context}: DBC reads {phys}, encoder was given {v}"
+                ),
+                Want::Named(label) => {
+                    assert_eq!(raw, value_of(&dbc, msg, name, label), "{context}")
+                }
+                Want::Crc => assert_eq!(
+                    raw,
+                    i64::from(e2e_crc(data_id(&dbc, msg), &case.data[1..])),
+                    "{context}"
+                ),
+                Want::Counter => assert_eq!(raw, i64::from(case.counter), "{context}"),
+            }
+            let (min, max) = (numeric(&sig.min), numeric(&sig.max));
+            assert!(
+                phys >= min - 1e-9 && phys <= max + 1e-9,
+                "{context}: {phys} outside the DBC range [{min}|{max}]"
+            );
+        }
+
+        // Bits no signal covers are reserved: the encoder must leave them 0.
+        let word = u64::from_le_bytes(case.data);
+        let used = msg.signals.iter().fold(0u64, |acc, s| {
+            let mask = if s.size == 64 {
+                u64::MAX
+            } else {
+                (1u64 << s.size) - 1
+            };
+            acc | (mask << s.start_bit)
+        });
+        assert_eq!(word & !used, 0, "{}: reserved bits set", msg.name);
+    }
+
+    let all: BTreeSet<(String, String)> = dbc
+        .messages
+        .iter()
+        .flat_map(|m| m.signals.iter().map(|s| (m.name.clone(), s.name.clone())))
+        .collect();
+    assert_eq!(covered, all, "some DBC signals are never checked");
+}
+
+#[test]
+fn dbc_frames_are_well_formed() {
+    let dbc = load();
+    assert_eq!(dbc.messages.len(), 3);
+    for msg in &dbc.messages {
+        assert_eq!(msg.size, 8, "{}", msg.name);
+        assert!(
+            matches!(msg.id, can_dbc::MessageId::Standard(id) if id <= 0x7FF),
+            "{}: standard 11-bit ID",
+            msg.name
+        );
+        let mut used = 0u64;
+        for s in &msg.signals {
+            assert_eq!(
+                s.byte_order,
+                ByteOrder::LittleEndian,
+                "{}.{}",
+                msg.name,
+                s.name
+            );
+            assert!(s.start_bit + s.size <= 64, "{}.{}", msg.name, s.name);
+            let mask = ((1u128 << s.size) - 1) as u64;
+            assert_eq!(
+                used & (mask << s.start_bit),
+                0,
+                "{}.{} overlaps",
+                msg.name,
+                s.name
+            );
+            used |= mask << s.start_bit;
+        }
+        // The E2E header is part of every message.
+        signal(msg, "CRC8");
+        let counter = signal(msg, "AliveCounter");
+        assert_eq!(numeric(&counter.max), f64::from(AliveCounter::MAX));
+        assert!(
+            dbc.message_comment(msg.id).is_some(),
+            "{}: no comment",
+            msg.name
+        );
+        for s in &msg.signals {
+            assert!(
+                dbc.signal_comment(msg.id, &s.name).is_some(),
+                "{}.{}: no comment",
+                msg.name,
+                s.name
+            );
+        }
+    }
+}
+
+#[test]
+fn ids_data_ids_and_cycle_times_match_the_rust_defaults() {
+    fn check<M: CanMessage>(dbc: &Dbc, configured: MessageConfig) {
+        let msg = message(dbc, M::NAME);
+        assert_eq!(msg.id.raw(), M::DEFAULT_ID, "{} CAN ID", M::NAME);
+        assert_eq!(
+            msg.id.raw(),
+            configured.id,
+            "{} CAN ID in CanConfig",
+            M::NAME
+        );
+        assert_eq!(data_id(dbc, msg), M::DEFAULT_DATA_ID, "{} Data ID", M::NAME);
+        assert_eq!(data_id(dbc, msg), configured.data_id, "{} Data ID", M::NAME);
+        let cycle = attr_u64(
+            dbc.message_attribute(msg.id, "GenMsgCycleTime"),
+            &format!("{} GenMsgCycleTime", M::NAME),
+        );
+        assert_eq!(
+            Duration::from_millis(cycle),
+            M::DEFAULT_PERIOD,
+            "{} period",
+            M::NAME
+        );
+        assert_eq!(u64::from(configured.period_ms), cycle, "{} period", M::NAME);
+    }
+    let dbc = load();
+    let cfg = CanConfig::default();
+    check::<CommandMsg>(&dbc, cfg.command);
+    check::<StatusMsg>(&dbc, cfg.status);
+    check::<ObstacleMsg>(&dbc, cfg.obstacle);
+}
+
+/// The Rust enums and the DBC value tables name the same values the same way, both directions.
+#[test]
+fn enums_match_the_value_tables() {
+    fn check(dbc: &Dbc, msg_name: &str, signal_name: &str, rust: Vec<(u8, &'static str)>) {
+        let msg = message(dbc, msg_name);
+        let mut table = value_table(dbc, msg, signal_name);
+        table.sort();
+        let mut rust: Vec<(i64, String)> = rust
+            .into_iter()
+            .map(|(v, n)| (i64::from(v), n.to_owned()))
+            .collect();
+        rust.sort();
+        assert_eq!(table, rust, "{msg_name}.{signal_name}");
+        let sig = signal(msg, signal_name);
+        let max_raw = rust.iter().map(|(v, _)| *v).max().unwrap_or(0) as f64;
+        assert_eq!(
+            (numeric(&sig.min), numeric(&sig.max)),
+            (0.0, max_raw),
+            "{msg_name}.{signal_name} range"
+        );
+    }
+    let dbc = load();
+    check(
+        &dbc,
+        CommandMsg::NAME,
+        "Command",
+        Command::ALL.iter().map(|c| (c.raw(), c.name())).collect(),
+    );
+    check(
+        &dbc,
+        CommandMsg::NAME,
+        "CommandReason",
+        CommandReason::ALL
+            .iter()
+            .map(|c| (c.raw(), c.name()))
+            .collect(),
+    );
+    check(
+        &dbc,
+        StatusMsg::NAME,
+        "State",
+        State::ALL.iter().map(|c| (c.raw(), c.name())).collect(),
+    );
+}
+
+/// Out-of-range inputs land exactly on the DBC's [min|max], and a NaN warning on the DBC's
+/// INVALID value.
+#[test]
+fn saturation_matches_the_dbc_ranges() {
+    type Build = fn(f64) -> [u8; 8];
+    let c = counter(0);
+    let builds: Vec<(&str, &str, Build)> = vec![
+        (CommandMsg::NAME, "RequestedDecel", |v| {
+            command_with(|m| m.requested_decel = v)
+        }),
+        (CommandMsg::NAME, "GlobalWarning", |v| {
+            command_with(|m| m.global_warning = v)
+        }),
+        (StatusMsg::NAME, "PerceptionAgeMs", |v| {
+            status_with(|m| {
+                m.perception_age = if v > 0.0 {
+                    Duration::MAX
+                } else {
+                    Duration::ZERO
+                }
+            })
+        }),
+        (StatusMsg::NAME, "GenerationsPerSec", |v| {
+            status_with(|m| m.generations_per_sec = v)
+        }),
+        (StatusMsg::NAME, "CamFpsLeft", |v| {
+            status_with(|m| m.cam_fps_left = v)
+        }),
+        (StatusMsg::NAME, "CamFpsRight", |v| {
+            status_with(|m| m.cam_fps_right = v)
+        }),
+        (ObstacleMsg::NAME, "Distance", |v| {
+            obstacle_with(|m| m.distance = v)
+        }),
+        (ObstacleMsg::NAME, "Lateral", |v| {
+            obstacle_with(|m| m.lateral = v)
+        }),
+        (ObstacleMsg::NAME, "Confidence", |v| {
+            obstacle_with(|m| m.confidence = v)
+        }),
+    ];
+    let dbc = load();
+    for (msg_name, sig_name, build) in builds {
+        let msg = message(&dbc, msg_name);
+        let sig = signal(msg, sig_name);
+        for (input, want) in [(1e12, numeric(&sig.max)), (-1e12, numeric(&sig.min))] {
+            let got = physical(sig, &build(input));
+            assert!(
+                (got - want).abs() <= sig.factor.abs() * 1e-3,
+                "{msg_name}.{sig_name}: {input} encoded as {got}, DBC range end is {want}"
+            );
+        }
+    }
+
+    let msg = message(&dbc, CommandMsg::NAME);
+    let sig = signal(msg, "GlobalWarning");
+    let nan = CommandMsg {
+        global_warning: f64::NAN,
+        ..base_command()
+    }
+    .encode(c);
+    assert_eq!(
+        raw_value(sig, &nan),
+        value_of(&dbc, msg, "GlobalWarning", "INVALID")
+    );
+}
+
+fn base_command() -> CommandMsg {
+    CommandMsg {
+        command: Command::Slow,
+        requested_decel: 1.0,
+        global_warning: 0.5,
+        reason: CommandReason::Perception,
+    }
+}
+
+fn command_with(f: impl FnOnce(&mut CommandMsg)) -> [u8; 8] {
+    let mut m = base_command();
+    f(&mut m);
+    m.encode(AliveCounter::ZERO)
+}
+
+fn status_with(f: impl FnOnce(&mut StatusMsg)) -> [u8; 8] {
+    let mut m = StatusMsg {
+        state: State::Running,
+        faults: FaultBits::empty(),
+        perception_age: Duration::from_millis(20),
+        generations_per_sec: 100.0,
+        cam_fps_left: 30.0,
+        cam_fps_right: 30.0,
+    };
+    f(&mut m);
+    m.encode(AliveCounter::ZERO)
+}
+
+fn obstacle_with(f: impl FnOnce(&mut ObstacleMsg)) -> [u8; 8] {
+    let mut m = ObstacleMsg {
+        valid: true,
+        distance: 10.0,
+        lateral: 0.0,
+        confidence: 50.0,
+    };
+    f(&mut m);
+    m.encode(AliveCounter::ZERO)
+}
