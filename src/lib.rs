@@ -1,1 +1,2 @@
+pub mod calib;
 pub mod geometry;
