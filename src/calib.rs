@@ -7,7 +7,11 @@
 //!   bounds, pixels), `isint`, `dyavg`, `dymax`. The images are rectified and undistorted. The left
 //!   camera sits at the vehicle origin looking along +z, the right one at x = baseline. The depth
 //!   range comes from the disparity range; the scene has no road.
-//! - OpenCV FileStorage YAML and the project's own rig TOML: to come.
+//! - **OpenCV FileStorage YAML** ([`parse_opencv_yaml`]) as saved by `cv::stereoCalibrate` users:
+//!   `K1`, `D1`, `K2`, `D2`, `R`, `T` as `!!opencv-matrix` with `p_right_cam = R * p_left_cam + T`,
+//!   T in the unit declared in [`OpenCvImport`]. The file says nothing about where the rig is on the
+//!   vehicle: [`OpenCvImport`] places the left camera.
+//! - The project's own rig TOML: to come.
 //!
 //! [`load`] picks the format from the extension and content.
 //!
@@ -31,10 +35,12 @@ use nalgebra::{Matrix3, Point3};
 use crate::geometry::{Camera, CameraError, Distortion, Intrinsics, StereoRig};
 
 mod middlebury;
+mod opencv;
 #[cfg(test)]
 mod tests;
 
 pub use middlebury::parse_middlebury;
+pub use opencv::{OpenCvImport, Unit, parse_opencv_yaml};
 
 /// A stereo rig loaded from a calibration file, with what the file implies about the scene.
 #[derive(Debug, Clone, PartialEq)]
@@ -59,7 +65,8 @@ pub enum CalibError {
         error: std::io::Error,
     },
     #[error(
-        "calibration file {}: unrecognised format (expected a Middlebury calib.txt with 'cam0=')",
+        "calibration file {}: unrecognised format (expected an OpenCV FileStorage YAML with a \
+         '%YAML' header or '.yml'/'.yaml' extension, or a Middlebury calib.txt with 'cam0=')",
         file.display()
     )]
     UnknownFormat { file: PathBuf },
@@ -116,7 +123,9 @@ fn field_error(file: &Path, field: impl Into<String>, message: impl Into<String>
     }
 }
 
-/// Loads a calibration, detecting its format: a `cam0=` line means a Middlebury `calib.txt`.
+/// Loads a calibration, detecting its format: a `%YAML` header or a `.yml`/`.yaml` extension means
+/// an OpenCV file (imported with [`OpenCvImport::default`]), and a `cam0=` line a Middlebury
+/// `calib.txt`.
 pub fn load(path: &Path) -> Result<Calibration, CalibError> {
     let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
         file: path.to_path_buf(),
@@ -124,7 +133,13 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
     })?;
     // Editors on Windows like to prepend a byte-order mark; it means nothing to any of the formats.
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    if text.lines().any(|line| {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
+        parse_opencv_yaml(text, path, &OpenCvImport::default())
+    } else if text.lines().any(|line| {
         line.trim_start()
             .strip_prefix("cam0")
             .is_some_and(|rest| rest.trim_start().starts_with('='))
@@ -291,18 +306,8 @@ fn check_rig(
     let depth = depth_range.map_or(DEFAULT_OVERLAP_DEPTH_M, |(min, max)| (min * max).sqrt());
     let k = rig.left.intrinsics();
     let problem = match rig.left.vehicle_from_pixel_depth(k.cx, k.cy, depth) {
-        None => Some("cannot back-project the left principal point".to_string()),
-        Some(p) => match rig.right.pixel_from_vehicle(&p) {
-            None => Some("it is behind the right camera".to_string()),
-            Some(px) if !rig.right.contains(&px) => Some(format!(
-                "it projects to ({:.1}, {:.1}), outside the {}x{} right image",
-                px.x,
-                px.y,
-                rig.right.width(),
-                rig.right.height()
-            )),
-            Some(_) => None,
-        },
+        None => Some("the left principal point cannot be back-projected".to_string()),
+        Some(p) => outside_right_view(&rig.right, &p),
     };
     match problem {
         Some(problem) => Err(field_error(
@@ -314,5 +319,34 @@ fn check_rig(
             ),
         )),
         None => Ok(()),
+    }
+}
+
+/// Why the right camera does not see vehicle-frame point `p`, if it does not.
+fn outside_right_view(right: &Camera, p: &Point3<f64>) -> Option<String> {
+    let cam = right.camera_from_vehicle(p);
+    let Some(px) = right.pixel_from_camera(&cam) else {
+        return Some("it is behind the right camera".to_string());
+    };
+    // Far off axis, the distortion polynomial can fold a point back into the image: a point is
+    // only seen where the model is invertible, so its pixel must back-project to its direction.
+    let seen = right.contains(&px)
+        && right
+            .normalised_from_pixel(px.x, px.y)
+            .is_some_and(|(x, y)| {
+                (x - cam.x / cam.z).abs() < 1e-6 && (y - cam.y / cam.z).abs() < 1e-6
+            });
+    if seen {
+        None
+    } else if px.x.abs() < 1e6 && px.y.abs() < 1e6 {
+        Some(format!(
+            "it projects to ({:.1}, {:.1}), outside the {}x{} right image",
+            px.x,
+            px.y,
+            right.width(),
+            right.height()
+        ))
+    } else {
+        Some("it is far outside the right camera's field of view".to_string())
     }
 }

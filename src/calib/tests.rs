@@ -1,6 +1,6 @@
 use std::path::{Path, PathBuf};
 
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 
 use super::*;
 
@@ -153,4 +153,179 @@ fn io_errors_name_the_file() {
     let err = load(&fixture("calib/does_not_exist.txt")).expect_err("no such file");
     assert!(err.to_string().contains("does_not_exist.txt"), "{err}");
     assert!(err.field().is_none());
+}
+
+/// A minimal OpenCV stereo file: 640x480 cameras, no distortion, the given R and T and extra keys.
+fn opencv_text(header_keys: &str, r: &Matrix3<f64>, t: [f64; 3]) -> String {
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let r_rows: Vec<f64> = (0..3)
+        .flat_map(|i| (0..3).map(move |j| r[(i, j)]))
+        .collect();
+    format!(
+        "%YAML:1.0\n---\n{header_keys}\
+         K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n\
+         D1: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n   data: [ 0., 0., 0., 0. ]\n\
+         K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 510., 0., 330., 0., 505., 235., 0., 0., 1. ]\n\
+         D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ -0.1, 0.01, 0., 0., 0. ]\n\
+         R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ {} ]\n\
+         T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ {} ]\n",
+        list(&r_rows),
+        list(&t)
+    )
+}
+
+#[test]
+fn opencv_stereo_loads_with_default_placement() {
+    let calib = load_fixture("calib/opencv_stereo.yml");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!((left.width(), left.height()), (1280, 720));
+    assert_eq!((right.width(), right.height()), (1280, 720));
+    assert_close(left.intrinsics().fx, 1_052.823_145_791_044, 1e-9, "K1 fx");
+    assert_close(left.intrinsics().cy, 359.871_622_809_353_8, 1e-9, "K1 cy");
+    assert_close(right.intrinsics().cx, 636.4891207735019, 1e-9, "K2 cx");
+    assert_close(left.distortion().k1, -0.17451208235371, 1e-12, "D1 k1");
+    assert_close(left.distortion().k3, 0.0090471139002081, 1e-12, "D1 k3");
+    assert_close(right.distortion().p2, 0.00051183317761934, 1e-12, "D2 p2");
+    // Default import: metres, left camera 1.2 m above the road, level, straight ahead.
+    assert_eq!(left.centre(), Point3::new(0.0, 1.2, 0.0));
+    assert_eq!(left.rotation().matrix(), &Matrix3::identity());
+    let t_norm = (0.11984315f64.powi(2) + 0.0004127f64.powi(2) + 0.00119812f64.powi(2)).sqrt();
+    assert_close(calib.rig.baseline(), t_norm, 1e-12, "baseline = |T|");
+    // T's x is negative: the right camera is to the right of the left one.
+    assert!(right.centre().x > 0.119);
+    assert!(calib.has_road);
+    assert_eq!(calib.depth_range, None);
+}
+
+#[test]
+fn opencv_pose_follows_the_stereo_calibrate_convention() {
+    // Whatever the mounting, p_right_cam = R * p_left_cam + T must hold for every point.
+    let r = *nalgebra::Rotation3::from_euler_angles(0.01, -0.035, 0.02).matrix();
+    let t = [-0.12, 0.004, 0.01];
+    let text = opencv_text("image_width: 640\nimage_height: 480\n", &r, t);
+    let opts = OpenCvImport {
+        left_position: Point3::new(-0.3, 1.4, 1.0),
+        pitch_deg: 5.0,
+        yaw_deg: -3.0,
+        roll_deg: 1.0,
+        ..OpenCvImport::default()
+    };
+    let calib = parse_opencv_yaml(&text, Path::new("inline.yml"), &opts).expect("valid");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!(left.centre(), opts.left_position);
+    assert_eq!(right.intrinsics().fy, 505.0);
+    assert_eq!(right.distortion().k1, -0.1);
+    for p_left in [
+        Point3::new(0.0, 0.0, 10.0),
+        Point3::new(1.5, -0.7, 4.0),
+        Point3::new(-2.0, 0.4, 25.0),
+    ] {
+        let p_vehicle = left.vehicle_from_camera(&p_left);
+        let expected = r * p_left.coords + nalgebra::Vector3::from(t);
+        let actual = right.camera_from_vehicle(&p_vehicle);
+        assert!(
+            (actual.coords - expected).norm() < 1e-12,
+            "{actual} vs {expected}"
+        );
+    }
+}
+
+#[test]
+fn opencv_rational_model_with_zero_terms_in_millimetres() {
+    // Old OpenCV 2 header (no '---'), 8 coefficients with k4..k6 = 0, T in mm, no image size.
+    let path = fixture("calib/opencv_rational_mm.yml");
+    let text = std::fs::read_to_string(&path).expect("fixture");
+    let opts = OpenCvImport {
+        translation_unit: Unit::Millimetre,
+        image_size: Some((640, 480)),
+        ..OpenCvImport::default()
+    };
+    let calib = parse_opencv_yaml(&text, &path, &opts).expect("valid");
+    let t_mm = (62.8411902f64.powi(2) + 0.2204137f64.powi(2) + 0.8312054f64.powi(2)).sqrt();
+    assert_close(calib.rig.baseline(), t_mm / 1000.0, 1e-12, "baseline");
+    assert_close(
+        calib.rig.left.distortion().k3,
+        -0.0310487322,
+        1e-12,
+        "D1 k3",
+    );
+    assert_eq!(calib.rig.right.width(), 640);
+    // Without the options, the size is missing; with metres, T is 63 m.
+    let err = parse_opencv_yaml(&text, &path, &OpenCvImport::default()).expect_err("no size");
+    assert!(err.to_string().contains("'image_width'"), "{err}");
+    let metres = OpenCvImport {
+        image_size: Some((640, 480)),
+        ..OpenCvImport::default()
+    };
+    let err = parse_opencv_yaml(&text, &path, &metres).expect_err("mm as m");
+    assert!(err.to_string().contains("millimetres"), "{err}");
+}
+
+#[test]
+fn opencv_image_size_spellings() {
+    let r = Matrix3::identity();
+    let t = [-0.1, 0.0, 0.0];
+    let size_of = |keys: &str, given: Option<(u32, u32)>| {
+        let opts = OpenCvImport {
+            image_size: given,
+            ..OpenCvImport::default()
+        };
+        parse_opencv_yaml(&opencv_text(keys, &r, t), Path::new("size.yml"), &opts)
+            .map(|c| (c.rig.left.width(), c.rig.right.height()))
+            .map_err(|e| e.to_string())
+    };
+    assert_eq!(size_of("imageSize: [ 640, 480 ]\n", None), Ok((640, 480)));
+    assert_eq!(size_of("image_size: [ 800, 600 ]\n", None), Ok((800, 600)));
+    let matrix =
+        "imageSize: !!opencv-matrix\n   rows: 1\n   cols: 2\n   dt: d\n   data: [ 1024., 768. ]\n";
+    assert_eq!(size_of(matrix, None), Ok((1024, 768)));
+    assert_eq!(size_of("", Some((640, 480))), Ok((640, 480)));
+    assert_eq!(
+        size_of("imageSize: [ 640, 480 ]\n", Some((640, 480))),
+        Ok((640, 480))
+    );
+    let mismatch = size_of("imageSize: [ 640, 480 ]\n", Some((1280, 960))).expect_err("differ");
+    assert!(
+        mismatch.contains("'imageSize'") && mismatch.contains("1280x960"),
+        "{mismatch}"
+    );
+    let half = size_of("image_width: 640\n", None).expect_err("no height");
+    assert!(half.contains("'image_height'"), "{half}");
+    let fraction = size_of("imageSize: [ 640.5, 480 ]\n", None).expect_err("fraction");
+    assert!(fraction.contains("'imageSize'"), "{fraction}");
+}
+
+#[test]
+fn broken_opencv_files() {
+    check_err("broken/yml_missing_T.yml", &["field 'T': missing"]);
+    check_err(
+        "broken/yml_K1_8_numbers.yml",
+        &["field 'K1': expected 9 numbers (3x3 matrix), got 8"],
+    );
+    check_err("broken/yml_D1_7_coefficients.yml", &["'D1'", "1x7"]);
+    check_err("broken/yml_nan_K2.yml", &["'K2'", ".nan", "finite"]);
+    check_err(
+        "broken/yml_negative_focal.yml",
+        &["'K1 (left camera)'", "fx must be positive"],
+    );
+    check_err("broken/yml_rational_nonzero.yml", &["'D2'", "k4 = 0.0021"]);
+    check_err(
+        "broken/yml_baseline_mm.yml",
+        &["'T'", "millimetres", "translation_unit = \"mm\""],
+    );
+    check_err("broken/yml_not_a_rotation.yml", &["'R'", "rotation"]);
+    check_err(
+        "broken/yml_no_image_size.yml",
+        &["'image_width'", "image size"],
+    );
+    check_err(
+        "broken/yml_non_overlapping.yml",
+        &["'R, T'", "do not overlap"],
+    );
+    check_err("broken/yml_syntax_error.yml", &["'D2'", "invalid YAML"]);
 }
