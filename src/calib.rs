@@ -11,7 +11,9 @@
 //!   `K1`, `D1`, `K2`, `D2`, `R`, `T` as `!!opencv-matrix` with `p_right_cam = R * p_left_cam + T`,
 //!   T in the unit declared in [`OpenCvImport`]. The file says nothing about where the rig is on the
 //!   vehicle: [`OpenCvImport`] places the left camera.
-//! - The project's own rig TOML: to come.
+//! - **flyd rig TOML** ([`parse_rig_toml`]), the project's own format: either two explicit cameras
+//!   (`[left]`, `[right]`) or an `[opencv]` import placed by `[mount]`, plus an optional `[search]`
+//!   depth range and road flag. Unknown keys are errors.
 //!
 //! [`load`] picks the format from the extension and content.
 //!
@@ -36,11 +38,13 @@ use crate::geometry::{Camera, CameraError, Distortion, Intrinsics, StereoRig};
 
 mod middlebury;
 mod opencv;
+mod rig;
 #[cfg(test)]
 mod tests;
 
 pub use middlebury::parse_middlebury;
 pub use opencv::{OpenCvImport, Unit, parse_opencv_yaml};
+pub use rig::parse_rig_toml;
 
 /// A stereo rig loaded from a calibration file, with what the file implies about the scene.
 #[derive(Debug, Clone, PartialEq)]
@@ -65,8 +69,9 @@ pub enum CalibError {
         error: std::io::Error,
     },
     #[error(
-        "calibration file {}: unrecognised format (expected an OpenCV FileStorage YAML with a \
-         '%YAML' header or '.yml'/'.yaml' extension, or a Middlebury calib.txt with 'cam0=')",
+        "calibration file {}: unrecognised format (expected a flyd rig '.toml', an OpenCV \
+         FileStorage YAML with a '%YAML' header or '.yml'/'.yaml' extension, or a Middlebury \
+         calib.txt with 'cam0=')",
         file.display()
     )]
     UnknownFormat { file: PathBuf },
@@ -123,8 +128,8 @@ fn field_error(file: &Path, field: impl Into<String>, message: impl Into<String>
     }
 }
 
-/// Loads a calibration, detecting its format: a `%YAML` header or a `.yml`/`.yaml` extension means
-/// an OpenCV file (imported with [`OpenCvImport::default`]), and a `cam0=` line a Middlebury
+/// Loads a calibration, detecting its format: a `.toml` extension means a flyd rig, a `%YAML`
+/// header or a `.yml`/`.yaml` extension an OpenCV file (imported with [`OpenCvImport::default`]), and a `cam0=` line a Middlebury
 /// `calib.txt`.
 pub fn load(path: &Path) -> Result<Calibration, CalibError> {
     let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
@@ -137,7 +142,9 @@ pub fn load(path: &Path) -> Result<Calibration, CalibError> {
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
+    if ext.as_deref() == Some("toml") {
+        parse_rig_toml(text, path)
+    } else if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
         parse_opencv_yaml(text, path, &OpenCvImport::default())
     } else if text.lines().any(|line| {
         line.trim_start()

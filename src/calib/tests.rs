@@ -3,6 +3,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Point3};
 
 use super::*;
+use crate::geometry::{Distortion, Intrinsics};
 
 fn fixture(relative: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -328,4 +329,200 @@ fn broken_opencv_files() {
         &["'R, T'", "do not overlap"],
     );
     check_err("broken/yml_syntax_error.yml", &["'D2'", "invalid YAML"]);
+}
+
+#[test]
+fn rig_toml_with_explicit_cameras_loads() {
+    let calib = load_fixture("calib/rig_explicit.toml");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!((left.width(), left.height()), (640, 480));
+    // The right section gives no size: it takes the left one's.
+    assert_eq!((right.width(), right.height()), (640, 480));
+    assert_eq!(
+        *left.intrinsics(),
+        Intrinsics {
+            fx: 520.0,
+            fy: 521.5,
+            cx: 319.5,
+            cy: 239.5
+        }
+    );
+    assert_eq!(right.intrinsics().cx, 322.1);
+    assert_eq!(
+        *left.distortion(),
+        Distortion {
+            k1: -0.05,
+            k2: 0.01,
+            p1: 0.0005,
+            p2: -0.0002,
+            k3: 0.0
+        }
+    );
+    assert_eq!(right.distortion().k2, 0.009);
+    assert_eq!(left.centre(), Point3::new(-0.15, 1.3, 0.0));
+    assert_eq!(right.centre(), Point3::new(0.15, 1.3, 0.0));
+    // The right camera's explicit matrix and the left camera's angles describe the same pitch.
+    let pitched = crate::geometry::rotation_from_angles(5.0, 0.0, 0.0);
+    assert!((left.rotation().matrix() - pitched).abs().max() < 1e-12);
+    assert!((right.rotation().matrix() - pitched).abs().max() < 1e-12);
+    assert_close(calib.rig.baseline(), 0.3, 1e-12, "baseline");
+    assert_eq!(calib.depth_range, Some((1.0, 25.0)));
+    assert!(calib.has_road);
+}
+
+#[test]
+fn rig_toml_imports_and_mounts_an_opencv_file() {
+    let calib = load_fixture("calib/rig_opencv.toml");
+    let yaml = fixture("calib/opencv_stereo.yml");
+    let text = std::fs::read_to_string(&yaml).expect("fixture");
+    let opts = OpenCvImport {
+        left_position: Point3::new(-0.06, 1.25, 1.8),
+        pitch_deg: 3.0,
+        ..OpenCvImport::default()
+    };
+    let direct = parse_opencv_yaml(&text, &yaml, &opts).expect("valid");
+    assert_eq!(calib.rig, direct.rig);
+    assert_eq!(calib.rig.left.centre(), Point3::new(-0.06, 1.25, 1.8));
+    assert_eq!(calib.depth_range, Some((2.0, 40.0)));
+    assert!(calib.has_road);
+
+    let mm = load_fixture("calib/rig_opencv_mm.toml");
+    let t_mm = (62.8411902f64.powi(2) + 0.2204137f64.powi(2) + 0.8312054f64.powi(2)).sqrt();
+    assert_close(mm.rig.baseline(), t_mm / 1000.0, 1e-12, "baseline");
+    assert_eq!((mm.rig.left.width(), mm.rig.left.height()), (640, 480));
+    assert_eq!(mm.rig.left.centre(), Point3::new(0.0, 1.2, 0.0));
+    assert_eq!(mm.depth_range, None);
+    assert!(!mm.has_road);
+}
+
+#[test]
+fn broken_rig_files() {
+    check_err(
+        "broken/toml_unknown_key.toml",
+        &["'left.focal'", "unknown field"],
+    );
+    check_err(
+        "broken/toml_wrong_type.toml",
+        &["'left.fx'", "invalid type"],
+    );
+    check_err("broken/toml_missing_field.toml", &["'right.cy'", "missing"]);
+    check_err(
+        "broken/toml_negative_focal.toml",
+        &["'right.fy'", "must be positive"],
+    );
+    check_err(
+        "broken/toml_nan_position.toml",
+        &["'left.position'", "finite"],
+    );
+    check_err(
+        "broken/toml_depth_order.toml",
+        &["'search.min_depth'", "max_depth"],
+    );
+    check_err(
+        "broken/toml_rotation_and_angles.toml",
+        &["'left.rotation'", "not both"],
+    );
+    check_err("broken/toml_negative_width.toml", &["'left.width'", "-640"]);
+    check_err(
+        "broken/toml_baseline_too_long.toml",
+        &["'right.position'", "baseline"],
+    );
+    check_err(
+        "broken/toml_distortion_count.toml",
+        &["'right.distortion'", "got 3"],
+    );
+    check_err(
+        "broken/toml_road_not_bool.toml",
+        &["'search.road'", "boolean"],
+    );
+    check_err(
+        "broken/toml_syntax_error.toml",
+        &["'line 4'", "unclosed table"],
+    );
+    check_err(
+        "broken/toml_non_overlapping.toml",
+        &["'right'", "do not overlap"],
+    );
+    check_err("broken/toml_both_sources.toml", &["'opencv'", "not both"]);
+    check_err("broken/toml_mount_without_opencv.toml", &["'mount'"]);
+    check_err(
+        "broken/toml_unit_mm_as_m.toml",
+        &[
+            "'opencv.file'",
+            "opencv_rational_mm.yml",
+            "'T'",
+            "millimetres",
+        ],
+    );
+    check_err(
+        "broken/toml_bad_unit.toml",
+        &["'opencv.translation_unit'", "km"],
+    );
+    check_err(
+        "broken/toml_missing_yaml.toml",
+        &["'opencv.file'", "no_such_calibration.yml"],
+    );
+    check_err(
+        "broken/toml_size_mismatch.toml",
+        &[
+            "'opencv.file'",
+            "opencv_stereo.yml",
+            "'image_width'",
+            "640x360",
+        ],
+    );
+    check_err(
+        "broken/toml_mount_nan.toml",
+        &["'mount.pitch_deg'", "finite"],
+    );
+    check_err(
+        "broken/toml_search_half.toml",
+        &["'search.max_depth'", "missing"],
+    );
+    check_err("broken/unknown_format.txt", &["unrecognised format"]);
+}
+
+#[test]
+fn toml_errors_inside_multi_line_arrays_name_the_key() {
+    let text = "[left]\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                position = [0.0, 1.2, 0.0]\nrotation = [\n  [1.0, 0.0, 0.0],\n  [0.0, 1.0, 0.0],\n  \
+                [0.0, \"x\", 1.0],\n]\n";
+    let err = parse_rig_toml(text, Path::new("inline.toml")).expect_err("bad element");
+    assert_eq!(err.field(), Some("left.rotation"), "{err}");
+}
+
+/// Cutting a good file anywhere must give an error or a valid rig, never a panic.
+#[test]
+fn truncated_files_never_panic() {
+    for relative in [
+        "middlebury-motorcycle/calib.txt",
+        "calib/middlebury_vmin_vmax.txt",
+        "calib/opencv_stereo.yml",
+        "calib/opencv_rational_mm.yml",
+        "calib/rig_explicit.toml",
+        "calib/rig_opencv.toml",
+    ] {
+        let path = fixture(relative);
+        let text = std::fs::read_to_string(&path).expect("fixture");
+        let opts = OpenCvImport {
+            translation_unit: Unit::Millimetre,
+            image_size: Some((640, 480)),
+            ..OpenCvImport::default()
+        };
+        for end in (0..text.len())
+            .step_by(5)
+            .filter(|&i| text.is_char_boundary(i))
+        {
+            let cut = &text[..end];
+            let results = [
+                parse_middlebury(cut, &path),
+                parse_opencv_yaml(cut, &path, &opts),
+                parse_rig_toml(cut, &path),
+            ];
+            // Errors are fine; whatever loads went through the same checks as a whole file.
+            for calib in results.into_iter().flatten() {
+                assert!(calib.rig.baseline().is_finite(), "{relative}[..{end}]");
+            }
+        }
+    }
 }
