@@ -1,2 +1,3 @@
 pub mod calib;
+pub mod dataset;
 pub mod geometry;
