@@ -50,9 +50,11 @@ pub use rig::parse_rig_toml;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
     pub rig: StereoRig,
-    /// Depth range (metres along the left camera axis) where flies are searched, when the file implies one.
+    /// Depth range (metres along the left camera axis) where flies are searched, when the file
+    /// implies one.
     pub depth_range: Option<(f64, f64)>,
-    /// Whether the scene has a road at y = 0 (false for datasets such as Middlebury: the engine then disables its road region-of-interest penalties).
+    /// Whether the scene has a road at y = 0 (false for datasets such as Middlebury: the engine
+    /// then disables its road region-of-interest penalties).
     pub has_road: bool,
 }
 
@@ -129,8 +131,8 @@ fn field_error(file: &Path, field: impl Into<String>, message: impl Into<String>
 }
 
 /// Loads a calibration, detecting its format: a `.toml` extension means a flyd rig, a `%YAML`
-/// header or a `.yml`/`.yaml` extension an OpenCV file (imported with [`OpenCvImport::default`]), and a `cam0=` line a Middlebury
-/// `calib.txt`.
+/// header or a `.yml`/`.yaml` extension an OpenCV file (imported with
+/// [`OpenCvImport::default`]), and a `cam0=` line a Middlebury `calib.txt`.
 pub fn load(path: &Path) -> Result<Calibration, CalibError> {
     let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
         file: path.to_path_buf(),
@@ -305,7 +307,7 @@ fn check_rig(
             file,
             fields.baseline,
             format!(
-                "the baseline (distance between the optical centres) is {baseline} m; it must be \
+                "the baseline (distance between the optical centres) is {baseline:.4} m; it must be \
                  more than 0 and less than {MAX_BASELINE_M} m"
             ),
         ));

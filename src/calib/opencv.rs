@@ -498,10 +498,10 @@ impl ImageSize {
     }
 }
 
-/// OpenCV writes a non-standard `%YAML:1.0` directive. serde-saphyr accepts it as OpenCV 3 and
-/// later write it, followed by `---`, but OpenCV 2.x omitted the `---`, which YAML parsers reject.
-/// The directive says nothing we need, so it becomes a comment (same line count, so error lines
-/// still match the file).
+/// OpenCV writes a non-standard `%YAML:1.0` directive. serde-saphyr accepts it when a `---`
+/// follows, as OpenCV 3 and later write it, but OpenCV 2.x omitted the `---`, and a directive
+/// without a document start is a syntax error. The directive says nothing we need, so it becomes
+/// a comment (on the same line, so error line numbers still match the file).
 fn without_opencv_directive(text: &str) -> Cow<'_, str> {
     match text.strip_prefix("%YAML:") {
         Some(rest) => Cow::Owned(format!("#YAML:{rest}")),

@@ -526,3 +526,20 @@ fn truncated_files_never_panic() {
         }
     }
 }
+
+#[test]
+fn rig_toml_right_camera_may_state_its_own_size() {
+    // A right camera of another resolution is fine as long as the file says so: flies are
+    // projected into each image independently.
+    let text = "[left]\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                position = [-0.1, 1.2, 0.0]\n\
+                [right]\nwidth = 1280\nheight = 960\nfx = 1000.0\nfy = 1000.0\ncx = 640.0\n\
+                cy = 480.0\nposition = [0.1, 1.2, 0.0]\n";
+    let calib = parse_rig_toml(text, Path::new("inline.toml")).expect("valid");
+    assert_eq!(
+        (calib.rig.left.width(), calib.rig.right.width()),
+        (640, 1280)
+    );
+    assert_eq!(calib.depth_range, None);
+    assert!(calib.has_road);
+}
