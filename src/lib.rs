@@ -1,4 +1,6 @@
+pub mod calib;
 pub mod can;
+pub mod dataset;
 pub mod decision;
 pub mod engine;
 pub mod frame;

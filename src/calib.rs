@@ -1,0 +1,361 @@
+//! Stereo calibration files: loading a [`StereoRig`] placed in the vehicle frame.
+//!
+//! # Formats
+//! - **Middlebury `calib.txt`** ([`parse_middlebury`]): `key=value` lines with `cam0`/`cam1`
+//!   intrinsics `[f 0 cx; 0 f cy; 0 0 1]` in pixels, `doffs` (= cx1 - cx0, pixels), `baseline`
+//!   (**millimetres**), `width`, `height`, `ndisp` and optionally `vmin`, `vmax` (disparity
+//!   bounds, pixels), `isint`, `dyavg`, `dymax`. The images are rectified and undistorted. The left
+//!   camera sits at the vehicle origin looking along +z, the right one at x = baseline. The depth
+//!   range comes from the disparity range; the scene has no road.
+//! - **OpenCV FileStorage YAML** ([`parse_opencv_yaml`]) as saved by `cv::stereoCalibrate` users:
+//!   `K1`, `D1`, `K2`, `D2`, `R`, `T` as `!!opencv-matrix` with `p_right_cam = R * p_left_cam + T`,
+//!   T in the unit declared in [`OpenCvImport`]. The file says nothing about where the rig is on the
+//!   vehicle: [`OpenCvImport`] places the left camera.
+//! - **flyd rig TOML** ([`parse_rig_toml`]), the project's own format: either two explicit cameras
+//!   (`[left]`, `[right]`) or an `[opencv]` import placed by `[mount]`, plus an optional `[search]`
+//!   depth range and road flag. Unknown keys are errors.
+//!
+//! [`load`] picks the format from the extension and content.
+//!
+//! # Conventions and units
+//! Frames are those of [`crate::geometry`]: vehicle frame x right, y up from the road, z forward;
+//! OpenCV camera frame. Positions, baselines and depths are metres, intrinsics pixels, angles
+//! degrees. Depth ranges are measured along the left camera's optical axis.
+//!
+//! # Errors
+//! Every [`CalibError`] names the file and, for content errors, the field (as spelled in that
+//! file, with the camera side when the key alone does not say it). Cameras go through
+//! [`Camera::new`], so a loaded rig never contains NaN, infinite or impossible values, and the rig
+//! as a whole is checked: 0 < baseline < 5 m, the cameras see a common point ahead (at the
+//! geometric mean of the depth range, or 10 m), and the depth range is positive and ordered.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Point3};
+
+use crate::geometry::{Camera, CameraError, Distortion, Intrinsics, StereoRig};
+
+mod middlebury;
+mod opencv;
+mod rig;
+#[cfg(test)]
+mod tests;
+
+pub use middlebury::parse_middlebury;
+pub use opencv::{OpenCvImport, Unit, parse_opencv_yaml};
+pub use rig::parse_rig_toml;
+
+/// A stereo rig loaded from a calibration file, with what the file implies about the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    pub rig: StereoRig,
+    /// Depth range (metres along the left camera axis) where flies are searched, when the file
+    /// implies one.
+    pub depth_range: Option<(f64, f64)>,
+    /// Whether the scene has a road at y = 0 (false for datasets such as Middlebury: the engine
+    /// then disables its road region-of-interest penalties).
+    pub has_road: bool,
+}
+
+/// Why a calibration file cannot be used.
+///
+/// The underlying cause is part of the message rather than exposed through
+/// [`std::error::Error::source`]: users see the `Display` text, and exposing it twice would
+/// repeat it in `{:#}` error chains.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    #[error("calibration file {}: {error}", file.display())]
+    Io {
+        file: PathBuf,
+        error: std::io::Error,
+    },
+    #[error(
+        "calibration file {}: unrecognised format (expected a flyd rig '.toml', an OpenCV \
+         FileStorage YAML with a '%YAML' header or '.yml'/'.yaml' extension, or a Middlebury \
+         calib.txt with 'cam0=')",
+        file.display()
+    )]
+    UnknownFormat { file: PathBuf },
+    #[error("calibration file {}: field '{field}': {message}", file.display())]
+    Field {
+        file: PathBuf,
+        field: String,
+        message: String,
+    },
+    #[error("calibration file {}: field '{field}': {error}", file.display())]
+    Camera {
+        file: PathBuf,
+        field: String,
+        error: CameraError,
+    },
+    /// A rig TOML's `[opencv]` import failed; `error` names the imported file.
+    #[error("calibration file {}: field '{field}': {error}", file.display())]
+    Import {
+        file: PathBuf,
+        field: String,
+        error: Box<CalibError>,
+    },
+}
+
+impl CalibError {
+    /// The file the error is about (for an import, the rig TOML that imports it).
+    pub fn file(&self) -> &Path {
+        match self {
+            Self::Io { file, .. }
+            | Self::UnknownFormat { file }
+            | Self::Field { file, .. }
+            | Self::Camera { file, .. }
+            | Self::Import { file, .. } => file,
+        }
+    }
+
+    /// The offending field, when the error is about the content of the file.
+    pub fn field(&self) -> Option<&str> {
+        match self {
+            Self::Io { .. } | Self::UnknownFormat { .. } => None,
+            Self::Field { field, .. } | Self::Camera { field, .. } | Self::Import { field, .. } => {
+                Some(field)
+            }
+        }
+    }
+}
+
+/// Shorthand for a content error.
+fn field_error(file: &Path, field: impl Into<String>, message: impl Into<String>) -> CalibError {
+    CalibError::Field {
+        file: file.to_path_buf(),
+        field: field.into(),
+        message: message.into(),
+    }
+}
+
+/// Loads a calibration, detecting its format: a `.toml` extension means a flyd rig, a `%YAML`
+/// header or a `.yml`/`.yaml` extension an OpenCV file (imported with
+/// [`OpenCvImport::default`]), and a `cam0=` line a Middlebury `calib.txt`.
+pub fn load(path: &Path) -> Result<Calibration, CalibError> {
+    let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
+        file: path.to_path_buf(),
+        error,
+    })?;
+    // Editors on Windows like to prepend a byte-order mark; it means nothing to any of the formats.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if ext.as_deref() == Some("toml") {
+        parse_rig_toml(text, path)
+    } else if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
+        parse_opencv_yaml(text, path, &OpenCvImport::default())
+    } else if text.lines().any(|line| {
+        line.trim_start()
+            .strip_prefix("cam0")
+            .is_some_and(|rest| rest.trim_start().starts_with('='))
+    }) {
+        parse_middlebury(text, path)
+    } else {
+        Err(CalibError::UnknownFormat {
+            file: path.to_path_buf(),
+        })
+    }
+}
+
+/// Which camera of the rig.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Left,
+    Right,
+}
+
+impl fmt::Display for Side {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Side::Left => "left",
+            Side::Right => "right",
+        })
+    }
+}
+
+/// The part of a camera description that [`Camera::new`] refused, so that each format can blame
+/// the key that holds it in its own files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Part {
+    Width,
+    Height,
+    /// "fx", "fy", "cx" or "cy".
+    Intrinsics(&'static str),
+    Distortion,
+    Rotation,
+    Position,
+}
+
+impl Part {
+    fn of(error: &CameraError) -> Self {
+        match error {
+            CameraError::TooSmall { width, .. } if *width < 16 => Part::Width,
+            CameraError::TooSmall { .. } => Part::Height,
+            CameraError::NotARotation { .. } => Part::Rotation,
+            CameraError::PrincipalPointOutside { cx, width, .. } => {
+                if (0.0..f64::from(*width)).contains(cx) {
+                    Part::Intrinsics("cy")
+                } else {
+                    Part::Intrinsics("cx")
+                }
+            }
+            CameraError::NotFinite { field, .. } | CameraError::NotPositive { field, .. } => {
+                match *field {
+                    "fx" => Part::Intrinsics("fx"),
+                    "fy" => Part::Intrinsics("fy"),
+                    "cx" => Part::Intrinsics("cx"),
+                    "cy" => Part::Intrinsics("cy"),
+                    "k1" | "k2" | "k3" | "p1" | "p2" => Part::Distortion,
+                    "rotation" => Part::Rotation,
+                    _ => Part::Position,
+                }
+            }
+        }
+    }
+}
+
+/// Everything needed to build one camera, before validation.
+struct CameraSpec {
+    width: u32,
+    height: u32,
+    intrinsics: Intrinsics,
+    distortion: Distortion,
+    rotation: Matrix3<f64>,
+    centre: Point3<f64>,
+}
+
+/// Builds a camera through [`Camera::new`]'s validation, naming the file's field on failure.
+/// `field_of` maps the refused part to the field name as this format spells it.
+fn build_camera(
+    file: &Path,
+    side: Side,
+    spec: CameraSpec,
+    field_of: impl Fn(Side, Part) -> String,
+) -> Result<Camera, CalibError> {
+    Camera::new(
+        spec.width,
+        spec.height,
+        spec.intrinsics,
+        spec.distortion,
+        spec.rotation,
+        spec.centre,
+    )
+    .map_err(|error| CalibError::Camera {
+        file: file.to_path_buf(),
+        field: field_of(side, Part::of(&error)),
+        error,
+    })
+}
+
+/// Checks a depth range given by the file: finite, positive, ordered.
+fn check_depth_range(
+    file: &Path,
+    (min, max): (f64, f64),
+    min_field: &str,
+    max_field: &str,
+) -> Result<(), CalibError> {
+    for (field, value) in [(min_field, min), (max_field, max)] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(field_error(
+                file,
+                field,
+                format!("depth must be a positive finite number of metres (got {value})"),
+            ));
+        }
+    }
+    if min >= max {
+        return Err(field_error(
+            file,
+            min_field,
+            format!(
+                "minimum depth {min} m must be smaller than the maximum depth {max} m ({max_field})"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Largest plausible distance between the two optical centres: a longer baseline is almost
+/// certainly a unit mistake (millimetres read as metres).
+const MAX_BASELINE_M: f64 = 5.0;
+
+/// Depth of the overlap check when the file gives no depth range.
+const DEFAULT_OVERLAP_DEPTH_M: f64 = 10.0;
+
+/// Which fields to blame when the rig as a whole is inconsistent.
+struct RigFields<'a> {
+    baseline: &'a str,
+    overlap: &'a str,
+}
+
+/// Consistency checks on a rig whose cameras are individually valid: a baseline in (0, 5) m and
+/// cameras that look at the same scene, tested with the point on the left optical axis at the
+/// geometric mean of the depth range (10 m without one), which must land inside the right image.
+fn check_rig(
+    file: &Path,
+    rig: &StereoRig,
+    depth_range: Option<(f64, f64)>,
+    fields: RigFields<'_>,
+) -> Result<(), CalibError> {
+    let baseline = rig.baseline();
+    if !(baseline > 0.0 && baseline < MAX_BASELINE_M) {
+        return Err(field_error(
+            file,
+            fields.baseline,
+            format!(
+                "the baseline (distance between the optical centres) is {baseline:.4} m; it must be \
+                 more than 0 and less than {MAX_BASELINE_M} m"
+            ),
+        ));
+    }
+    let depth = depth_range.map_or(DEFAULT_OVERLAP_DEPTH_M, |(min, max)| (min * max).sqrt());
+    let k = rig.left.intrinsics();
+    let problem = match rig.left.vehicle_from_pixel_depth(k.cx, k.cy, depth) {
+        None => Some("the left principal point cannot be back-projected".to_string()),
+        Some(p) => outside_right_view(&rig.right, &p),
+    };
+    match problem {
+        Some(problem) => Err(field_error(
+            file,
+            fields.overlap,
+            format!(
+                "the cameras do not overlap: the point {depth:.2} m ahead on the left camera's \
+                 axis must be visible in both images, but {problem}"
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Why the right camera does not see vehicle-frame point `p`, if it does not.
+fn outside_right_view(right: &Camera, p: &Point3<f64>) -> Option<String> {
+    let cam = right.camera_from_vehicle(p);
+    let Some(px) = right.pixel_from_camera(&cam) else {
+        return Some("it is behind the right camera".to_string());
+    };
+    // Far off axis, the distortion polynomial can fold a point back into the image: a point is
+    // only seen where the model is invertible, so its pixel must back-project to its direction.
+    let seen = right.contains(&px)
+        && right
+            .normalised_from_pixel(px.x, px.y)
+            .is_some_and(|(x, y)| {
+                (x - cam.x / cam.z).abs() < 1e-6 && (y - cam.y / cam.z).abs() < 1e-6
+            });
+    if seen {
+        None
+    } else if px.x.abs() < 1e6 && px.y.abs() < 1e6 {
+        Some(format!(
+            "it projects to ({:.1}, {:.1}), outside the {}x{} right image",
+            px.x,
+            px.y,
+            right.width(),
+            right.height()
+        ))
+    } else {
+        Some("it is far outside the right camera's field of view".to_string())
+    }
+}

@@ -1,0 +1,457 @@
+//! The flyd rig TOML: the project's own calibration format.
+//!
+//! Either two explicit cameras:
+//!
+//! ```toml
+//! [left]
+//! width = 640                 # pixels; [right] defaults to the left size
+//! height = 480
+//! fx = 520.0                  # pixels
+//! fy = 520.0
+//! cx = 319.5                  # pixel centres, origin at the centre of the top-left pixel
+//! cy = 239.5
+//! distortion = [-0.05, 0.01, 0.0, 0.0, 0.0]  # k1 k2 p1 p2 [k3], optional
+//! position = [-0.15, 1.3, 0.0]                # optical centre, vehicle frame, metres
+//! pitch_deg = 5.0             # optional, see geometry::rotation_from_angles; or
+//! yaw_deg = 0.0               # rotation = [[...], [...], [...]] (rows; forward frame -> camera)
+//! roll_deg = 0.0
+//! [right]
+//! ...
+//! ```
+//!
+//! or an OpenCV file placed on the vehicle:
+//!
+//! ```toml
+//! [opencv]
+//! file = "stereo.yml"         # relative to this TOML
+//! translation_unit = "mm"     # unit of T: "m" (default), "cm" or "mm"
+//! width = 640                 # optional if the YAML records the size
+//! height = 480
+//! [mount]                     # optional: where the left camera is (default 1.2 m up, level)
+//! position = [-0.15, 1.3, 0.0]
+//! pitch_deg = 5.0
+//! ```
+//!
+//! and in both cases an optional search section:
+//!
+//! ```toml
+//! [search]
+//! min_depth = 1.0             # metres along the left camera axis; both or neither
+//! max_depth = 25.0
+//! road = true                 # default true
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Point3};
+use serde::Deserialize;
+
+use super::{
+    CalibError, Calibration, CameraSpec, OpenCvImport, Part, RigFields, Side, Unit, build_camera,
+    check_depth_range, check_rig, field_error, opencv,
+};
+use crate::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigFile {
+    left: Option<CameraToml>,
+    right: Option<CameraToml>,
+    opencv: Option<OpenCvToml>,
+    mount: Option<MountToml>,
+    search: Option<SearchToml>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraToml {
+    width: Option<u32>,
+    height: Option<u32>,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    distortion: Option<Vec<f64>>,
+    position: [f64; 3],
+    pitch_deg: Option<f64>,
+    yaw_deg: Option<f64>,
+    roll_deg: Option<f64>,
+    rotation: Option<[[f64; 3]; 3]>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OpenCvToml {
+    file: PathBuf,
+    translation_unit: Option<Unit>,
+    width: Option<u32>,
+    height: Option<u32>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MountToml {
+    position: Option<[f64; 3]>,
+    pitch_deg: Option<f64>,
+    yaw_deg: Option<f64>,
+    roll_deg: Option<f64>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SearchToml {
+    min_depth: Option<f64>,
+    max_depth: Option<f64>,
+    road: Option<bool>,
+}
+
+/// Parses a flyd rig TOML. `origin` names the file in errors and is where an `[opencv]` file is
+/// looked up relative to.
+pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibError> {
+    let file: RigFile = toml::from_str(text).map_err(|e| toml_error(origin, text, &e))?;
+    let search = file.search.unwrap_or_default();
+    let depth_range = match (search.min_depth, search.max_depth) {
+        (Some(min), Some(max)) => {
+            check_depth_range(origin, (min, max), "search.min_depth", "search.max_depth")?;
+            Some((min, max))
+        }
+        (None, None) => None,
+        (Some(_), None) => {
+            return Err(field_error(
+                origin,
+                "search.max_depth",
+                "missing (search.min_depth is given)",
+            ));
+        }
+        (None, Some(_)) => {
+            return Err(field_error(
+                origin,
+                "search.min_depth",
+                "missing (search.max_depth is given)",
+            ));
+        }
+    };
+    let rig = match (file.left, file.right, file.opencv) {
+        (Some(_), _, Some(_)) | (_, Some(_), Some(_)) => {
+            return Err(field_error(
+                origin,
+                "opencv",
+                "give either [left] and [right] or [opencv], not both",
+            ));
+        }
+        (None, None, None) => {
+            return Err(field_error(
+                origin,
+                "left",
+                "missing: a rig needs [left] and [right] cameras, or an [opencv] import",
+            ));
+        }
+        (Some(_), None, None) => return Err(field_error(origin, "right", "missing")),
+        (None, Some(_), None) => return Err(field_error(origin, "left", "missing")),
+        (Some(left), Some(right), None) => {
+            if file.mount.is_some() {
+                return Err(field_error(
+                    origin,
+                    "mount",
+                    "only used with [opencv]; explicit cameras give their own position and angles",
+                ));
+            }
+            explicit_rig(origin, &left, &right, depth_range)?
+        }
+        (None, None, Some(import)) => {
+            imported_rig(origin, &import, file.mount.unwrap_or_default(), depth_range)?
+        }
+    };
+    Ok(Calibration {
+        rig,
+        depth_range,
+        has_road: search.road.unwrap_or(true),
+    })
+}
+
+fn explicit_rig(
+    file: &Path,
+    left: &CameraToml,
+    right: &CameraToml,
+    depth_range: Option<(f64, f64)>,
+) -> Result<StereoRig, CalibError> {
+    let left = camera(file, Side::Left, left, None)?;
+    let right = camera(
+        file,
+        Side::Right,
+        right,
+        Some((left.width(), left.height())),
+    )?;
+    let rig = StereoRig { left, right };
+    check_rig(
+        file,
+        &rig,
+        depth_range,
+        RigFields {
+            baseline: "right.position",
+            overlap: "right",
+        },
+    )?;
+    Ok(rig)
+}
+
+/// One explicit camera; `default_size` is the size used when the section gives none.
+fn camera(
+    file: &Path,
+    side: Side,
+    spec: &CameraToml,
+    default_size: Option<(u32, u32)>,
+) -> Result<Camera, CalibError> {
+    let key = |name: &str| format!("{side}.{name}");
+    let width = spec
+        .width
+        .or(default_size.map(|s| s.0))
+        .ok_or_else(|| field_error(file, key("width"), "missing"))?;
+    let height = spec
+        .height
+        .or(default_size.map(|s| s.1))
+        .ok_or_else(|| field_error(file, key("height"), "missing"))?;
+    let distortion = match spec.distortion.as_deref() {
+        None => Distortion::default(),
+        Some(&[k1, k2, p1, p2]) => Distortion {
+            k1,
+            k2,
+            p1,
+            p2,
+            k3: 0.0,
+        },
+        Some(&[k1, k2, p1, p2, k3]) => Distortion { k1, k2, p1, p2, k3 },
+        Some(other) => {
+            return Err(field_error(
+                file,
+                key("distortion"),
+                format!(
+                    "expected 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {}",
+                    other.len()
+                ),
+            ));
+        }
+    };
+    let angles = [
+        ("pitch_deg", spec.pitch_deg),
+        ("yaw_deg", spec.yaw_deg),
+        ("roll_deg", spec.roll_deg),
+    ];
+    let rotation = match spec.rotation {
+        Some(rows) => {
+            if angles.iter().any(|(_, a)| a.is_some()) {
+                return Err(field_error(
+                    file,
+                    key("rotation"),
+                    "give either rotation or pitch_deg/yaw_deg/roll_deg, not both",
+                ));
+            }
+            Matrix3::from_row_slice(rows.as_flattened())
+        }
+        None => {
+            let [pitch, yaw, roll] = finite_angles(file, &key, angles)?;
+            rotation_from_angles(pitch, yaw, roll)
+        }
+    };
+    let camera_spec = CameraSpec {
+        width,
+        height,
+        intrinsics: Intrinsics {
+            fx: spec.fx,
+            fy: spec.fy,
+            cx: spec.cx,
+            cy: spec.cy,
+        },
+        distortion,
+        rotation,
+        centre: Point3::from(spec.position),
+    };
+    build_camera(file, side, camera_spec, |side, part| {
+        let name = match part {
+            Part::Width => "width",
+            Part::Height => "height",
+            Part::Intrinsics(name) => name,
+            Part::Distortion => "distortion",
+            Part::Rotation => "rotation",
+            Part::Position => "position",
+        };
+        format!("{side}.{name}")
+    })
+}
+
+/// The angles (degrees, 0 when absent), which must be finite.
+fn finite_angles(
+    file: &Path,
+    key: &impl Fn(&str) -> String,
+    angles: [(&str, Option<f64>); 3],
+) -> Result<[f64; 3], CalibError> {
+    let mut out = [0.0; 3];
+    for (slot, (name, value)) in out.iter_mut().zip(angles) {
+        let value = value.unwrap_or(0.0);
+        if !value.is_finite() {
+            return Err(field_error(
+                file,
+                key(name),
+                format!("must be a finite number of degrees (got {value})"),
+            ));
+        }
+        *slot = value;
+    }
+    Ok(out)
+}
+
+fn imported_rig(
+    file: &Path,
+    import: &OpenCvToml,
+    mount: MountToml,
+    depth_range: Option<(f64, f64)>,
+) -> Result<StereoRig, CalibError> {
+    let defaults = OpenCvImport::default();
+    let left_position = match mount.position {
+        Some(p) if p.iter().any(|v| !v.is_finite()) => {
+            return Err(field_error(
+                file,
+                "mount.position",
+                format!("must be finite numbers of metres (got {p:?})"),
+            ));
+        }
+        Some(p) => Point3::from(p),
+        None => defaults.left_position,
+    };
+    let mount_key = |name: &str| format!("mount.{name}");
+    let [pitch_deg, yaw_deg, roll_deg] = finite_angles(
+        file,
+        &mount_key,
+        [
+            ("pitch_deg", mount.pitch_deg),
+            ("yaw_deg", mount.yaw_deg),
+            ("roll_deg", mount.roll_deg),
+        ],
+    )?;
+    let image_size = match (import.width, import.height) {
+        (Some(w), Some(h)) => Some((w, h)),
+        (None, None) => None,
+        (Some(_), None) => {
+            return Err(field_error(
+                file,
+                "opencv.height",
+                "missing (opencv.width is given)",
+            ));
+        }
+        (None, Some(_)) => {
+            return Err(field_error(
+                file,
+                "opencv.width",
+                "missing (opencv.height is given)",
+            ));
+        }
+    };
+    let opts = OpenCvImport {
+        translation_unit: import.translation_unit.unwrap_or_default(),
+        image_size,
+        left_position,
+        pitch_deg,
+        yaw_deg,
+        roll_deg,
+    };
+    let yaml_path = file
+        .parent()
+        .unwrap_or_else(|| Path::new(""))
+        .join(&import.file);
+    let text = std::fs::read_to_string(&yaml_path).map_err(|e| {
+        field_error(
+            file,
+            "opencv.file",
+            format!("cannot read {}: {e}", yaml_path.display()),
+        )
+    })?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    opencv::build_rig(text, &yaml_path, &opts, depth_range).map_err(|error| CalibError::Import {
+        file: file.to_path_buf(),
+        field: "opencv.file".to_string(),
+        error: Box::new(error),
+    })
+}
+
+/// A TOML or schema error, blaming the dotted key at the error's position.
+fn toml_error(file: &Path, text: &str, error: &toml::de::Error) -> CalibError {
+    let message = error.message().trim();
+    let offset = error.span().map(|span| span.start);
+    let mut field = offset
+        .map(|offset| key_path_at(text, offset))
+        .unwrap_or_default();
+    // For missing (and some unknown) fields the position is the enclosing table; serde names the
+    // key in backquotes.
+    let named = ["missing field `", "unknown field `"]
+        .iter()
+        .find_map(|prefix| message.strip_prefix(prefix))
+        .and_then(|rest| rest.split('`').next());
+    if let Some(name) = named
+        && field.rsplit('.').next() != Some(name)
+    {
+        if !field.is_empty() {
+            field.push('.');
+        }
+        field.push_str(name);
+    }
+    if field.is_empty() {
+        // Before any key (a broken first header, say): the line is the best name there is.
+        field = match offset {
+            Some(offset) => {
+                let line = text.get(..offset).map_or(0, |t| t.matches('\n').count()) + 1;
+                format!("line {line}")
+            }
+            None => "(document)".to_string(),
+        };
+    }
+    field_error(file, field, message)
+}
+
+/// The dotted key (`table.key`) in force at byte `offset`: the last table header and the last
+/// `key =` line at or before it (continuation lines of a multi-line array keep their key). A
+/// best effort for error messages, good for the flat layout of rig files.
+fn key_path_at(text: &str, offset: usize) -> String {
+    let mut table = "";
+    let mut key: Option<&str> = None;
+    let mut start = 0;
+    for line in text.split_inclusive('\n') {
+        if start > offset {
+            break;
+        }
+        start += line.len();
+        let line = line.trim();
+        if line.starts_with('#') {
+            continue;
+        }
+        if let Some(header) = table_header(line) {
+            table = header;
+            key = None;
+        } else if let Some((k, _)) = line.split_once('=')
+            && is_key(k.trim())
+        {
+            key = Some(k.trim());
+        }
+    }
+    match (table, key) {
+        ("", None) => String::new(),
+        ("", Some(key)) => key.to_string(),
+        (table, None) => table.to_string(),
+        (table, Some(key)) => format!("{table}.{key}"),
+    }
+}
+
+/// The name in a `[table]` or `[[array]]` header line; `None` for other lines, including the
+/// continuation lines of a multi-line array such as `[0.0, 1.0, 0.0],`.
+fn table_header(line: &str) -> Option<&str> {
+    let inner = line.strip_prefix('[')?;
+    let inner = inner.strip_prefix('[').unwrap_or(inner);
+    let (name, rest) = inner.split_once(']')?;
+    let rest = rest.strip_prefix(']').unwrap_or(rest).trim_start();
+    (is_key(name.trim()) && (rest.is_empty() || rest.starts_with('#'))).then_some(name.trim())
+}
+
+fn is_key(s: &str) -> bool {
+    !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-. \"'".contains(c))
+}

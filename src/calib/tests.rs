@@ -1,0 +1,545 @@
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Point3};
+
+use super::*;
+use crate::geometry::{Distortion, Intrinsics};
+
+fn fixture(relative: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(relative)
+}
+
+fn load_fixture(relative: &str) -> Calibration {
+    let path = fixture(relative);
+    load(&path).unwrap_or_else(|e| panic!("{relative} should load: {e}"))
+}
+
+/// Loads `tests/fixtures/calib/<file>`, which must fail with a message that names the file and
+/// contains each of `expected` (include the field name there).
+#[track_caller]
+fn check_err(file: &str, expected: &[&str]) {
+    let err = match load(&fixture("calib").join(file)) {
+        Ok(_) => panic!("{file}: loaded, but it is broken"),
+        Err(err) => err,
+    };
+    let message = err.to_string();
+    let name = file.rsplit('/').next().unwrap_or(file);
+    assert!(
+        message.contains(name),
+        "{file}: message does not name the file: {message}"
+    );
+    for part in expected {
+        assert!(
+            message.contains(part),
+            "{file}: message lacks {part:?}: {message}"
+        );
+    }
+}
+
+/// Horizontal disparity u_left - u_right of the point `depth` metres ahead on the left camera's
+/// optical axis, by projecting it through both cameras.
+fn axis_disparity(rig: &StereoRig, depth: f64) -> f64 {
+    let k = rig.left.intrinsics();
+    let p = rig
+        .left
+        .vehicle_from_pixel_depth(k.cx, k.cy, depth)
+        .expect("the principal point back-projects");
+    let right = rig.right.pixel_from_vehicle(&p).expect("in front");
+    k.cx - right.x
+}
+
+fn assert_close(actual: f64, expected: f64, tolerance: f64, what: &str) {
+    assert!(
+        (actual - expected).abs() <= tolerance,
+        "{what}: {actual} is not within {tolerance} of {expected}"
+    );
+}
+
+#[test]
+fn middlebury_motorcycle_loads() {
+    let calib = load_fixture("middlebury-motorcycle/calib.txt");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!((left.width(), left.height()), (741, 500));
+    assert_eq!((right.width(), right.height()), (741, 500));
+    assert_eq!(left.intrinsics().fx, 994.978);
+    assert_eq!(left.intrinsics().fy, 994.978);
+    assert_eq!(left.intrinsics().cx, 311.193);
+    assert_eq!(right.intrinsics().cx, 342.279);
+    assert!(left.distortion().is_zero() && right.distortion().is_zero());
+    assert_eq!(left.centre(), Point3::origin());
+    assert_close(calib.rig.baseline(), 0.193001, 1e-12, "baseline");
+    assert_close(right.centre().x, 0.193001, 1e-12, "right camera x");
+    assert!(!calib.has_road);
+
+    // ndisp = 68: the range ends are where the disparity is 68 (near) and 0 (far).
+    let (near, far) = calib.depth_range.expect("Middlebury implies a depth range");
+    assert_close(near, 0.193001 * 994.978 / (68.0 + 31.086), 1e-9, "near");
+    assert_close(far, 0.193001 * 994.978 / 31.086, 1e-9, "far");
+    assert_close(
+        axis_disparity(&calib.rig, near),
+        68.0,
+        1e-6,
+        "near disparity",
+    );
+    assert_close(axis_disparity(&calib.rig, far), 0.0, 1e-6, "far disparity");
+}
+
+#[test]
+fn middlebury_projection_gives_the_documented_disparity() {
+    // d = u_left - u_right = baseline * f / Z - doffs, on the same row, anywhere in the image.
+    let calib = load_fixture("middlebury-motorcycle/calib.txt");
+    let (b, f, doffs) = (0.193001, 994.978, 31.086);
+    for p in [
+        Point3::new(0.0, 0.0, 2.0),
+        Point3::new(-0.4, 0.3, 2.5),
+        Point3::new(0.6, -0.5, 4.0),
+        Point3::new(1.1, 0.2, 6.0),
+    ] {
+        let l = calib.rig.left.pixel_from_vehicle(&p).expect("in front");
+        let r = calib.rig.right.pixel_from_vehicle(&p).expect("in front");
+        assert!(calib.rig.left.contains(&l) && calib.rig.right.contains(&r));
+        assert_close(l.x - r.x, b * f / p.z - doffs, 1e-9, "disparity");
+        assert_close(l.y, r.y, 1e-9, "rectified rows");
+    }
+}
+
+#[test]
+fn middlebury_vmin_vmax_bound_the_depth_range() {
+    // vmin = 23, vmax = 245, widened by 2 px on each side.
+    let calib = load_fixture("calib/middlebury_vmin_vmax.txt");
+    let (near, far) = calib.depth_range.expect("depth range");
+    assert_close(axis_disparity(&calib.rig, near), 247.0, 1e-6, "near");
+    assert_close(axis_disparity(&calib.rig, far), 21.0, 1e-6, "far");
+    assert_eq!(calib.rig.left.intrinsics().fx, 3979.911);
+}
+
+#[test]
+fn middlebury_far_end_stays_finite_without_doffs() {
+    // doffs = 0 and no vmin: disparity 0 is infinitely far, so the range stops at 1 px.
+    let text = "cam0=[500 0 100; 0 500 80; 0 0 1]\r\ncam1=[500 0 100; 0 500 80; 0 0 1]\r\n\
+                doffs=0\r\nbaseline=100\r\nwidth=200\r\nheight=160\r\nndisp=50\r\n";
+    let calib = parse_middlebury(text, Path::new("inline.txt")).expect("valid");
+    let (near, far) = calib.depth_range.expect("depth range");
+    assert_close(near, 0.1 * 500.0 / 50.0, 1e-12, "near");
+    assert_close(far, 0.1 * 500.0, 1e-12, "far");
+}
+
+#[test]
+fn broken_middlebury_files() {
+    check_err("broken/mb_missing_baseline.txt", &["'baseline'", "missing"]);
+    check_err(
+        "broken/mb_cam0_8_numbers.txt",
+        &["field 'cam0': expected 9 numbers, got 8"],
+    );
+    check_err("broken/mb_nan_doffs.txt", &["'doffs'", "finite", "nan"]);
+    check_err(
+        "broken/mb_negative_focal.txt",
+        &["'cam1 (right camera)'", "fx must be positive"],
+    );
+    check_err("broken/mb_doffs_mismatch.txt", &["'doffs'", "31.08"]);
+    check_err("broken/mb_not_rectified.txt", &["'cam1'", "rectified"]);
+    check_err("broken/mb_width_not_whole.txt", &["'width'", "741.5"]);
+    check_err("broken/mb_vmin_above_vmax.txt", &["'vmin'", "vmax"]);
+    check_err(
+        "broken/mb_line_without_equals.txt",
+        &["'line 6'", "key=value"],
+    );
+    check_err("broken/mb_duplicate_key.txt", &["'baseline'", "twice"]);
+}
+
+#[test]
+fn io_errors_name_the_file() {
+    let err = load(&fixture("calib/does_not_exist.txt")).expect_err("no such file");
+    assert!(err.to_string().contains("does_not_exist.txt"), "{err}");
+    assert!(err.field().is_none());
+}
+
+/// A minimal OpenCV stereo file: 640x480 cameras, no distortion, the given R and T and extra keys.
+fn opencv_text(header_keys: &str, r: &Matrix3<f64>, t: [f64; 3]) -> String {
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let r_rows: Vec<f64> = (0..3)
+        .flat_map(|i| (0..3).map(move |j| r[(i, j)]))
+        .collect();
+    format!(
+        "%YAML:1.0\n---\n{header_keys}\
+         K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n\
+         D1: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n   data: [ 0., 0., 0., 0. ]\n\
+         K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 510., 0., 330., 0., 505., 235., 0., 0., 1. ]\n\
+         D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ -0.1, 0.01, 0., 0., 0. ]\n\
+         R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ {} ]\n\
+         T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ {} ]\n",
+        list(&r_rows),
+        list(&t)
+    )
+}
+
+#[test]
+fn opencv_stereo_loads_with_default_placement() {
+    let calib = load_fixture("calib/opencv_stereo.yml");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!((left.width(), left.height()), (1280, 720));
+    assert_eq!((right.width(), right.height()), (1280, 720));
+    assert_close(left.intrinsics().fx, 1_052.823_145_791_044, 1e-9, "K1 fx");
+    assert_close(left.intrinsics().cy, 359.871_622_809_353_8, 1e-9, "K1 cy");
+    assert_close(right.intrinsics().cx, 636.4891207735019, 1e-9, "K2 cx");
+    assert_close(left.distortion().k1, -0.17451208235371, 1e-12, "D1 k1");
+    assert_close(left.distortion().k3, 0.0090471139002081, 1e-12, "D1 k3");
+    assert_close(right.distortion().p2, 0.00051183317761934, 1e-12, "D2 p2");
+    // Default import: metres, left camera 1.2 m above the road, level, straight ahead.
+    assert_eq!(left.centre(), Point3::new(0.0, 1.2, 0.0));
+    assert_eq!(left.rotation().matrix(), &Matrix3::identity());
+    let t_norm = (0.11984315f64.powi(2) + 0.0004127f64.powi(2) + 0.00119812f64.powi(2)).sqrt();
+    assert_close(calib.rig.baseline(), t_norm, 1e-12, "baseline = |T|");
+    // T's x is negative: the right camera is to the right of the left one.
+    assert!(right.centre().x > 0.119);
+    assert!(calib.has_road);
+    assert_eq!(calib.depth_range, None);
+}
+
+#[test]
+fn opencv_pose_follows_the_stereo_calibrate_convention() {
+    // Whatever the mounting, p_right_cam = R * p_left_cam + T must hold for every point.
+    let r = *nalgebra::Rotation3::from_euler_angles(0.01, -0.035, 0.02).matrix();
+    let t = [-0.12, 0.004, 0.01];
+    let text = opencv_text("image_width: 640\nimage_height: 480\n", &r, t);
+    let opts = OpenCvImport {
+        left_position: Point3::new(-0.3, 1.4, 1.0),
+        pitch_deg: 5.0,
+        yaw_deg: -3.0,
+        roll_deg: 1.0,
+        ..OpenCvImport::default()
+    };
+    let calib = parse_opencv_yaml(&text, Path::new("inline.yml"), &opts).expect("valid");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!(left.centre(), opts.left_position);
+    assert_eq!(right.intrinsics().fy, 505.0);
+    assert_eq!(right.distortion().k1, -0.1);
+    for p_left in [
+        Point3::new(0.0, 0.0, 10.0),
+        Point3::new(1.5, -0.7, 4.0),
+        Point3::new(-2.0, 0.4, 25.0),
+    ] {
+        let p_vehicle = left.vehicle_from_camera(&p_left);
+        let expected = r * p_left.coords + nalgebra::Vector3::from(t);
+        let actual = right.camera_from_vehicle(&p_vehicle);
+        assert!(
+            (actual.coords - expected).norm() < 1e-12,
+            "{actual} vs {expected}"
+        );
+    }
+}
+
+#[test]
+fn opencv_rational_model_with_zero_terms_in_millimetres() {
+    // Old OpenCV 2 header (no '---'), 8 coefficients with k4..k6 = 0, T in mm, no image size.
+    let path = fixture("calib/opencv_rational_mm.yml");
+    let text = std::fs::read_to_string(&path).expect("fixture");
+    let opts = OpenCvImport {
+        translation_unit: Unit::Millimetre,
+        image_size: Some((640, 480)),
+        ..OpenCvImport::default()
+    };
+    let calib = parse_opencv_yaml(&text, &path, &opts).expect("valid");
+    let t_mm = (62.8411902f64.powi(2) + 0.2204137f64.powi(2) + 0.8312054f64.powi(2)).sqrt();
+    assert_close(calib.rig.baseline(), t_mm / 1000.0, 1e-12, "baseline");
+    assert_close(
+        calib.rig.left.distortion().k3,
+        -0.0310487322,
+        1e-12,
+        "D1 k3",
+    );
+    assert_eq!(calib.rig.right.width(), 640);
+    // Without the options, the size is missing; with metres, T is 63 m.
+    let err = parse_opencv_yaml(&text, &path, &OpenCvImport::default()).expect_err("no size");
+    assert!(err.to_string().contains("'image_width'"), "{err}");
+    let metres = OpenCvImport {
+        image_size: Some((640, 480)),
+        ..OpenCvImport::default()
+    };
+    let err = parse_opencv_yaml(&text, &path, &metres).expect_err("mm as m");
+    assert!(err.to_string().contains("millimetres"), "{err}");
+}
+
+#[test]
+fn opencv_image_size_spellings() {
+    let r = Matrix3::identity();
+    let t = [-0.1, 0.0, 0.0];
+    let size_of = |keys: &str, given: Option<(u32, u32)>| {
+        let opts = OpenCvImport {
+            image_size: given,
+            ..OpenCvImport::default()
+        };
+        parse_opencv_yaml(&opencv_text(keys, &r, t), Path::new("size.yml"), &opts)
+            .map(|c| (c.rig.left.width(), c.rig.right.height()))
+            .map_err(|e| e.to_string())
+    };
+    assert_eq!(size_of("imageSize: [ 640, 480 ]\n", None), Ok((640, 480)));
+    assert_eq!(size_of("image_size: [ 800, 600 ]\n", None), Ok((800, 600)));
+    let matrix =
+        "imageSize: !!opencv-matrix\n   rows: 1\n   cols: 2\n   dt: d\n   data: [ 1024., 768. ]\n";
+    assert_eq!(size_of(matrix, None), Ok((1024, 768)));
+    assert_eq!(size_of("", Some((640, 480))), Ok((640, 480)));
+    assert_eq!(
+        size_of("imageSize: [ 640, 480 ]\n", Some((640, 480))),
+        Ok((640, 480))
+    );
+    let mismatch = size_of("imageSize: [ 640, 480 ]\n", Some((1280, 960))).expect_err("differ");
+    assert!(
+        mismatch.contains("'imageSize'") && mismatch.contains("1280x960"),
+        "{mismatch}"
+    );
+    let half = size_of("image_width: 640\n", None).expect_err("no height");
+    assert!(half.contains("'image_height'"), "{half}");
+    let fraction = size_of("imageSize: [ 640.5, 480 ]\n", None).expect_err("fraction");
+    assert!(fraction.contains("'imageSize'"), "{fraction}");
+}
+
+#[test]
+fn broken_opencv_files() {
+    check_err("broken/yml_missing_T.yml", &["field 'T': missing"]);
+    check_err(
+        "broken/yml_K1_8_numbers.yml",
+        &["field 'K1': expected 9 numbers (3x3 matrix), got 8"],
+    );
+    check_err("broken/yml_D1_7_coefficients.yml", &["'D1'", "1x7"]);
+    check_err("broken/yml_nan_K2.yml", &["'K2'", ".nan", "finite"]);
+    check_err(
+        "broken/yml_negative_focal.yml",
+        &["'K1 (left camera)'", "fx must be positive"],
+    );
+    check_err("broken/yml_rational_nonzero.yml", &["'D2'", "k4 = 0.0021"]);
+    check_err(
+        "broken/yml_baseline_mm.yml",
+        &["'T'", "millimetres", "translation_unit = \"mm\""],
+    );
+    check_err("broken/yml_not_a_rotation.yml", &["'R'", "rotation"]);
+    check_err(
+        "broken/yml_no_image_size.yml",
+        &["'image_width'", "image size"],
+    );
+    check_err(
+        "broken/yml_non_overlapping.yml",
+        &["'R, T'", "do not overlap"],
+    );
+    check_err("broken/yml_syntax_error.yml", &["'D2'", "invalid YAML"]);
+}
+
+#[test]
+fn rig_toml_with_explicit_cameras_loads() {
+    let calib = load_fixture("calib/rig_explicit.toml");
+    let (left, right) = (&calib.rig.left, &calib.rig.right);
+    assert_eq!((left.width(), left.height()), (640, 480));
+    // The right section gives no size: it takes the left one's.
+    assert_eq!((right.width(), right.height()), (640, 480));
+    assert_eq!(
+        *left.intrinsics(),
+        Intrinsics {
+            fx: 520.0,
+            fy: 521.5,
+            cx: 319.5,
+            cy: 239.5
+        }
+    );
+    assert_eq!(right.intrinsics().cx, 322.1);
+    assert_eq!(
+        *left.distortion(),
+        Distortion {
+            k1: -0.05,
+            k2: 0.01,
+            p1: 0.0005,
+            p2: -0.0002,
+            k3: 0.0
+        }
+    );
+    assert_eq!(right.distortion().k2, 0.009);
+    assert_eq!(left.centre(), Point3::new(-0.15, 1.3, 0.0));
+    assert_eq!(right.centre(), Point3::new(0.15, 1.3, 0.0));
+    // The right camera's explicit matrix and the left camera's angles describe the same pitch.
+    let pitched = crate::geometry::rotation_from_angles(5.0, 0.0, 0.0);
+    assert!((left.rotation().matrix() - pitched).abs().max() < 1e-12);
+    assert!((right.rotation().matrix() - pitched).abs().max() < 1e-12);
+    assert_close(calib.rig.baseline(), 0.3, 1e-12, "baseline");
+    assert_eq!(calib.depth_range, Some((1.0, 25.0)));
+    assert!(calib.has_road);
+}
+
+#[test]
+fn rig_toml_imports_and_mounts_an_opencv_file() {
+    let calib = load_fixture("calib/rig_opencv.toml");
+    let yaml = fixture("calib/opencv_stereo.yml");
+    let text = std::fs::read_to_string(&yaml).expect("fixture");
+    let opts = OpenCvImport {
+        left_position: Point3::new(-0.06, 1.25, 1.8),
+        pitch_deg: 3.0,
+        ..OpenCvImport::default()
+    };
+    let direct = parse_opencv_yaml(&text, &yaml, &opts).expect("valid");
+    assert_eq!(calib.rig, direct.rig);
+    assert_eq!(calib.rig.left.centre(), Point3::new(-0.06, 1.25, 1.8));
+    assert_eq!(calib.depth_range, Some((2.0, 40.0)));
+    assert!(calib.has_road);
+
+    let mm = load_fixture("calib/rig_opencv_mm.toml");
+    let t_mm = (62.8411902f64.powi(2) + 0.2204137f64.powi(2) + 0.8312054f64.powi(2)).sqrt();
+    assert_close(mm.rig.baseline(), t_mm / 1000.0, 1e-12, "baseline");
+    assert_eq!((mm.rig.left.width(), mm.rig.left.height()), (640, 480));
+    assert_eq!(mm.rig.left.centre(), Point3::new(0.0, 1.2, 0.0));
+    assert_eq!(mm.depth_range, None);
+    assert!(!mm.has_road);
+}
+
+#[test]
+fn broken_rig_files() {
+    check_err(
+        "broken/toml_unknown_key.toml",
+        &["'left.focal'", "unknown field"],
+    );
+    check_err(
+        "broken/toml_wrong_type.toml",
+        &["'left.fx'", "invalid type"],
+    );
+    check_err("broken/toml_missing_field.toml", &["'right.cy'", "missing"]);
+    check_err(
+        "broken/toml_negative_focal.toml",
+        &["'right.fy'", "must be positive"],
+    );
+    check_err(
+        "broken/toml_nan_position.toml",
+        &["'left.position'", "finite"],
+    );
+    check_err(
+        "broken/toml_depth_order.toml",
+        &["'search.min_depth'", "max_depth"],
+    );
+    check_err(
+        "broken/toml_rotation_and_angles.toml",
+        &["'left.rotation'", "not both"],
+    );
+    check_err("broken/toml_negative_width.toml", &["'left.width'", "-640"]);
+    check_err(
+        "broken/toml_baseline_too_long.toml",
+        &["'right.position'", "baseline"],
+    );
+    check_err(
+        "broken/toml_distortion_count.toml",
+        &["'right.distortion'", "got 3"],
+    );
+    check_err(
+        "broken/toml_road_not_bool.toml",
+        &["'search.road'", "boolean"],
+    );
+    check_err(
+        "broken/toml_syntax_error.toml",
+        &["'line 4'", "unclosed table"],
+    );
+    check_err(
+        "broken/toml_non_overlapping.toml",
+        &["'right'", "do not overlap"],
+    );
+    check_err("broken/toml_both_sources.toml", &["'opencv'", "not both"]);
+    check_err("broken/toml_mount_without_opencv.toml", &["'mount'"]);
+    check_err(
+        "broken/toml_unit_mm_as_m.toml",
+        &[
+            "'opencv.file'",
+            "opencv_rational_mm.yml",
+            "'T'",
+            "millimetres",
+        ],
+    );
+    check_err(
+        "broken/toml_bad_unit.toml",
+        &["'opencv.translation_unit'", "km"],
+    );
+    check_err(
+        "broken/toml_missing_yaml.toml",
+        &["'opencv.file'", "no_such_calibration.yml"],
+    );
+    check_err(
+        "broken/toml_size_mismatch.toml",
+        &[
+            "'opencv.file'",
+            "opencv_stereo.yml",
+            "'image_width'",
+            "640x360",
+        ],
+    );
+    check_err(
+        "broken/toml_mount_nan.toml",
+        &["'mount.pitch_deg'", "finite"],
+    );
+    check_err(
+        "broken/toml_search_half.toml",
+        &["'search.max_depth'", "missing"],
+    );
+    check_err("broken/unknown_format.txt", &["unrecognised format"]);
+}
+
+#[test]
+fn toml_errors_inside_multi_line_arrays_name_the_key() {
+    let text = "[left]\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                position = [0.0, 1.2, 0.0]\nrotation = [\n  [1.0, 0.0, 0.0],\n  [0.0, 1.0, 0.0],\n  \
+                [0.0, \"x\", 1.0],\n]\n";
+    let err = parse_rig_toml(text, Path::new("inline.toml")).expect_err("bad element");
+    assert_eq!(err.field(), Some("left.rotation"), "{err}");
+}
+
+/// Cutting a good file anywhere must give an error or a valid rig, never a panic.
+#[test]
+fn truncated_files_never_panic() {
+    for relative in [
+        "middlebury-motorcycle/calib.txt",
+        "calib/middlebury_vmin_vmax.txt",
+        "calib/opencv_stereo.yml",
+        "calib/opencv_rational_mm.yml",
+        "calib/rig_explicit.toml",
+        "calib/rig_opencv.toml",
+    ] {
+        let path = fixture(relative);
+        let text = std::fs::read_to_string(&path).expect("fixture");
+        let opts = OpenCvImport {
+            translation_unit: Unit::Millimetre,
+            image_size: Some((640, 480)),
+            ..OpenCvImport::default()
+        };
+        for end in (0..text.len())
+            .step_by(5)
+            .filter(|&i| text.is_char_boundary(i))
+        {
+            let cut = &text[..end];
+            let results = [
+                parse_middlebury(cut, &path),
+                parse_opencv_yaml(cut, &path, &opts),
+                parse_rig_toml(cut, &path),
+            ];
+            // Errors are fine; whatever loads went through the same checks as a whole file.
+            for calib in results.into_iter().flatten() {
+                assert!(calib.rig.baseline().is_finite(), "{relative}[..{end}]");
+            }
+        }
+    }
+}
+
+#[test]
+fn rig_toml_right_camera_may_state_its_own_size() {
+    // A right camera of another resolution is fine as long as the file says so: flies are
+    // projected into each image independently.
+    let text = "[left]\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+                position = [-0.1, 1.2, 0.0]\n\
+                [right]\nwidth = 1280\nheight = 960\nfx = 1000.0\nfy = 1000.0\ncx = 640.0\n\
+                cy = 480.0\nposition = [0.1, 1.2, 0.0]\n";
+    let calib = parse_rig_toml(text, Path::new("inline.toml")).expect("valid");
+    assert_eq!(
+        (calib.rig.left.width(), calib.rig.right.width()),
+        (640, 1280)
+    );
+    assert_eq!(calib.depth_range, None);
+    assert!(calib.has_road);
+}
