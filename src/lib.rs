@@ -5,3 +5,4 @@ pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;
+pub mod source;
