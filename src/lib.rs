@@ -5,4 +5,5 @@ pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;
+pub mod replay;
 pub mod source;

@@ -1,1 +1,138 @@
-fn main() {}
+//! The `flyd` command: glue between the command line and the library.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use flyd::engine::{Engine, EngineParams};
+use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd::replay::{self, Summary, Timing, TraceRow};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+#[derive(Parser)]
+#[command(
+    name = "flyd",
+    version,
+    about = "Stereo obstacle detection with the Fly Algorithm"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the evolution on a stereo pair or a hw-mock scenario and write what it found.
+    Replay(ReplayArgs),
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// Left image (PNG or JPEG).
+    #[arg(long, requires_all = ["right", "calib"], conflicts_with = "scenario")]
+    left: Option<PathBuf>,
+    /// Right image (PNG or JPEG).
+    #[arg(long)]
+    right: Option<PathBuf>,
+    /// Calibration: flyd rig TOML, Middlebury calib.txt or OpenCV stereo YAML.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+    /// Generations to run (default: 50 on a stereo pair, the whole scenario otherwise).
+    #[arg(long)]
+    generations: Option<u64>,
+    /// Population size.
+    #[arg(long, default_value_t = EngineParams::default().flies)]
+    flies: usize,
+    /// Seed of the random generator.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Replay(args) => replay_command(args),
+    }
+}
+
+fn replay_command(args: ReplayArgs) -> Result<()> {
+    let (Some(left_path), Some(right_path), Some(calib_path)) =
+        (&args.left, &args.right, &args.calib)
+    else {
+        bail!("replay needs --left, --right and --calib (or --scenario)");
+    };
+    let cal = flyd::calib::load(calib_path)?;
+    let left = replay::load_rgb(left_path)?;
+    let right = replay::load_rgb(right_path)?;
+    for (name, img, cam) in [
+        ("left", &left, &cal.rig.left),
+        ("right", &right, &cal.rig.right),
+    ] {
+        if img.dimensions() != (cam.width(), cam.height()) {
+            bail!(
+                "{name} image is {}x{} but {} describes a {}x{} camera",
+                img.width(),
+                img.height(),
+                calib_path.display(),
+                cam.width(),
+                cam.height()
+            );
+        }
+    }
+    let mut params = EngineParams {
+        flies: args.flies,
+        seed: args.seed,
+        ..EngineParams::default()
+    };
+    if let Some((min, max)) = cal.depth_range {
+        params.min_depth = min;
+        params.max_depth = max;
+    }
+    if !cal.has_road {
+        params.roi = None;
+    }
+    let mut engine = Engine::new(&cal.rig, params).context("cannot start the engine")?;
+    let prep = |img: &image::RgbImage| {
+        PreparedImage::from_pixels(img.width(), img.height(), PixelFormat::Rgb8, img.as_raw())
+    };
+    let frame = StereoFrame::new(prep(&left)?, prep(&right)?, 0);
+    let generations = args.generations.unwrap_or(50);
+    let mut times = Vec::with_capacity(generations as usize);
+    let mut trace = Vec::with_capacity(generations as usize);
+    for _ in 0..generations {
+        let t = Instant::now();
+        let stats = engine.step(&frame)?;
+        let elapsed = t.elapsed();
+        times.push(elapsed);
+        trace.push(TraceRow {
+            frame: 0,
+            stats,
+            elapsed,
+        });
+    }
+    replay::write_outputs(&args.out, &engine, &left, &trace)?;
+    print_summary(&engine, 1, &mut times, &args.out)
+}
+
+fn print_summary(
+    engine: &Engine,
+    frames: u64,
+    times: &mut [Duration],
+    out: &std::path::Path,
+) -> Result<()> {
+    let stats = engine.stats();
+    let summary = Summary {
+        global_warning: stats.global_warning,
+        danger: stats.danger,
+        generations: stats.generation,
+        frames,
+        flies: engine.params().flies,
+        seed: engine.params().seed,
+        time_per_generation: Timing::of(times),
+        out_dir: out.display().to_string(),
+    };
+    println!("{}", serde_json::to_string_pretty(&summary)?);
+    Ok(())
+}

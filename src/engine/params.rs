@@ -71,10 +71,10 @@ impl Default for EngineParams {
         Self {
             flies: 5000,
             survival_rate: 0.4,
-            immigration_rate: 0.1,
+            immigration_rate: 0.05,
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
-            neighbourhood_radius: 2,
+            neighbourhood_radius: 3,
             ssd_floor: 1.0,
             sharing_cell_px: 8,
             sharing_exponent: 1.0,
