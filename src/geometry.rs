@@ -264,7 +264,8 @@ impl Camera {
 
     #[inline]
     pub fn pixel_from_camera(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
-        if !(p.z > MIN_CAMERA_DEPTH) {
+        // NaN depth must be rejected too, hence the explicit check.
+        if p.z.is_nan() || p.z <= MIN_CAMERA_DEPTH {
             return None;
         }
         let (xd, yd) = self.distortion.apply(p.x / p.z, p.y / p.z);
