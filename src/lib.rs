@@ -5,5 +5,6 @@ pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;
+pub mod mock;
 pub mod replay;
 pub mod source;
