@@ -150,7 +150,10 @@ mod tests {
 
     /// Left pixel (u, v) and right pixel (u', v) see the very same world point whenever the
     /// point's disparity is an integer; there, after undoing the right camera's gain and offset,
-    /// the noise-free colours must agree up to quantisation. Checked on the road and on a box.
+    /// the noise-free colours must agree up to quantisation: the two rays meet the surface within
+    /// a micrometre of each other (f32 ray storage), which can tip a value that sits on a rounding
+    /// boundary by one level, and the right camera's response rounds once more. Checked on the
+    /// road and on a box.
     #[test]
     fn both_cameras_see_the_same_texture_at_the_same_point() {
         let (left, right) = (Pinhole::new(-0.15), Pinhole::new(0.15));
@@ -179,6 +182,7 @@ mod tests {
             let ld = depth_of(&scene, &left);
             let rd = depth_of(&scene, &right);
             let mut compared = 0;
+            let (mut abs_sum, mut channels) = (0.0, 0usize);
             let mut seen = std::collections::HashSet::new();
             for v in 0..left.h {
                 for u in 0..left.w {
@@ -206,8 +210,10 @@ mod tests {
                         }
                         let undone = (f64::from(rr[3 * j + c]) - r.offset) / r.gain;
                         let lv = f64::from(l[3 * i + c]);
+                        abs_sum += (undone - lv).abs();
+                        channels += 1;
                         assert!(
-                            (undone - lv).abs() <= 0.5 / r.gain + 1e-9,
+                            (undone - lv).abs() <= 1.0 + 0.5 / r.gain + 1e-9,
                             "({u},{v}) c{c}: {undone} vs {lv} depth {} {}",
                             ld[i],
                             rd[j]
@@ -220,6 +226,9 @@ mod tests {
             // Plenty of points, and textured ones (not one flat colour).
             assert!(compared > 300, "{compared}");
             assert!(seen.len() > 10, "{}", seen.len());
+            // Differences beyond the response's own rounding (at most 0.47) are rare.
+            let mean = abs_sum / channels as f64;
+            assert!(mean < 0.3, "mean |difference| {mean}");
         }
     }
 

@@ -32,14 +32,14 @@ fn lattice_mix(z: u64) -> f64 {
 /// Uniform value in [0, 1) for an integer lattice point.
 #[inline]
 pub(crate) fn lattice(seed: u64, ix: i64, iy: i64) -> f64 {
-    lattice_mix(lattice_key(seed, ix, iy))
+    lattice_mix(lattice_key(splitmix64(seed), ix, iy))
 }
 
-/// Pre-mix key of a lattice point; neighbours differ by adding the axis constants, so a noise
-/// cell's four corners cost four mixes and no further multiplies.
+/// Pre-mix key of a lattice point for an already mixed seed; neighbours differ by adding the
+/// axis constants, so a noise cell's four corners cost four mixes and no further multiplies.
 #[inline(always)]
-fn lattice_key(seed: u64, ix: i64, iy: i64) -> u64 {
-    splitmix64(seed)
+fn lattice_key(mixed_seed: u64, ix: i64, iy: i64) -> u64 {
+    mixed_seed
         .wrapping_add((ix as u64).wrapping_mul(GOLDEN_GAMMA))
         .wrapping_add((iy as u64).wrapping_mul(LATTICE_Y))
 }
@@ -58,11 +58,17 @@ pub(crate) fn floor(x: f64) -> (i64, f64) {
 /// spectrum is concentrated below 1 cycle per unit, which is what lets [`fbm`] band-limit it.
 #[inline]
 pub(crate) fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
+    value_noise_mixed(splitmix64(seed), x, y)
+}
+
+/// [`value_noise`] for a seed already passed through [`splitmix64`].
+#[inline(always)]
+fn value_noise_mixed(mixed_seed: u64, x: f64, y: f64) -> f64 {
     let (ix, fx) = floor(x);
     let (iy, fy) = floor(y);
     let (tx, ty) = (x - fx, y - fy);
     let (sx, sy) = (tx * tx * (3.0 - 2.0 * tx), ty * ty * (3.0 - 2.0 * ty));
-    let k = lattice_key(seed, ix, iy);
+    let k = lattice_key(mixed_seed, ix, iy);
     let a = lattice_mix(k);
     let b = lattice_mix(k.wrapping_add(GOLDEN_GAMMA));
     let c = lattice_mix(k.wrapping_add(LATTICE_Y));
@@ -95,10 +101,12 @@ pub(crate) fn fbm(
     let mut amp = 1.0;
     let mut size = cell;
     let mut freq = 1.0 / cell;
+    // One seed mix per call; octaves step away from it by an odd constant (a far-away lattice).
+    let mut octave_seed = splitmix64(seed);
     for i in 0..octaves {
         let w = (size * inv_footprint - 1.0).clamp(0.0, 1.0);
         if w > 0.0 {
-            let n = value_noise(seed.wrapping_add(u64::from(i) << 32), x * freq, y * freq);
+            let n = value_noise_mixed(octave_seed, x * freq, y * freq);
             sum += amp * (0.5 + w * (n - 0.5));
         } else {
             // This octave and all finer ones are below the footprint: their means.
@@ -116,6 +124,7 @@ pub(crate) fn fbm(
         amp *= persistence;
         size *= 0.5;
         freq *= 2.0;
+        octave_seed = octave_seed.wrapping_add(0xD6E8_FEB8_6659_FD93);
     }
     if norm > 0.0 { sum / norm } else { 0.5 }
 }

@@ -164,49 +164,39 @@ fn apply_sensor(
         return;
     };
     // Sample k uses bits 12*(k % 5).. of hash(key + (k / 5) * gamma): a splitmix64 stream.
-    // The five samples of one hash are written out by hand with constant shifts: this loop is
-    // the whole per-frame cost of a static scene, and a generic inner loop compiles to a
-    // variable shift and a divide per sample.
+    // This loop is the whole per-frame cost of a static scene, so it runs in two passes over
+    // blocks: gather response + noise into fixed-point sums (five samples per hash, written out
+    // with constant shifts), then shift, saturate and narrow, which compiles to SIMD packs.
     const MASK: u64 = GAUSS_TABLE_LEN as u64 - 1;
-    #[inline(always)]
-    fn sample(c: u8, bits: u64, response: &[i32; 256], noise: &[i32; GAUSS_TABLE_LEN]) -> u8 {
-        // `response` already holds the +0.5 for rounding (see `response_table`).
-        let v = (response[usize::from(c)] + noise[(bits & MASK) as usize]) >> 8;
-        // One well-predicted branch in the common in-range case instead of two.
-        if (v as u32) <= 255 {
-            v as u8
-        } else if v < 0 {
-            0
-        } else {
-            255
-        }
-    }
+    const BLOCK: usize = 5 * 384; // multiple of 5: every block starts on a fresh hash
     let mut stream = key;
-    let mut next_hash = || {
-        let h = splitmix64(stream);
-        stream = stream.wrapping_add(GOLDEN_GAMMA);
-        h
-    };
-    let mut cin = clean.chunks_exact(5);
-    let mut cout = out.chunks_exact_mut(5);
-    for (i, o) in (&mut cin).zip(&mut cout) {
-        let h = next_hash();
-        if let ([c0, c1, c2, c3, c4], [o0, o1, o2, o3, o4]) = (i, o) {
-            *o0 = sample(*c0, h, response, noise);
-            *o1 = sample(*c1, h >> 12, response, noise);
-            *o2 = sample(*c2, h >> 24, response, noise);
-            *o3 = sample(*c3, h >> 36, response, noise);
-            *o4 = sample(*c4, h >> 48, response, noise);
+    let mut sums = [0i32; BLOCK];
+    for (cin, cout) in clean.chunks(BLOCK).zip(out.chunks_mut(BLOCK)) {
+        let sums = &mut sums[..cin.len()];
+        let mut fives = sums.chunks_exact_mut(5).zip(cin.chunks_exact(5));
+        for (sum, c) in &mut fives {
+            let h = splitmix64(stream);
+            stream = stream.wrapping_add(GOLDEN_GAMMA);
+            if let ([s0, s1, s2, s3, s4], [c0, c1, c2, c3, c4]) = (sum, c) {
+                let g =
+                    |c: &u8, bits: u64| response[usize::from(*c)] + noise[(bits & MASK) as usize];
+                *s0 = g(c0, h);
+                *s1 = g(c1, h >> 12);
+                *s2 = g(c2, h >> 24);
+                *s3 = g(c3, h >> 36);
+                *s4 = g(c4, h >> 48);
+            }
         }
-    }
-    let h = next_hash();
-    for (k, (c, o)) in cin
-        .remainder()
-        .iter()
-        .zip(cout.into_remainder())
-        .enumerate()
-    {
-        *o = sample(*c, h >> (12 * k), response, noise);
+        // The last block of an image whose sample count is not a multiple of 5.
+        let done = cin.len() - cin.len() % 5;
+        let h = splitmix64(stream);
+        for (k, (s, c)) in sums[done..].iter_mut().zip(&cin[done..]).enumerate() {
+            *s = response[usize::from(*c)] + noise[((h >> (12 * k)) & MASK) as usize];
+        }
+        // `response` holds the +0.5 of rounding (see `response_table`).
+        for (o, s) in cout.iter_mut().zip(sums.iter()) {
+            *o = (s >> 8).clamp(0, 255) as u8;
+        }
     }
 }
 
@@ -530,7 +520,7 @@ impl CameraRenderer {
             }));
             for v in tile.y0..tile.y1 {
                 for u in tile.x0..tile.x1 {
-                    let i = (v * self.width + u) as usize;
+                    let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
                         Some(ray) => trace(&ray, &candidates, &[]),
                         None => INVALID_SAMPLE,
@@ -579,7 +569,7 @@ impl CameraRenderer {
                 *dirty = true;
                 for v in tile.y0..tile.y1 {
                     for u in tile.x0..tile.x1 {
-                        let i = (v * self.width + u) as usize;
+                        let i = v as usize * self.width as usize + u as usize;
                         let Some(ray) = self.rays[i].ray() else {
                             continue;
                         };
@@ -650,7 +640,7 @@ fn tile_cone(rays: &[StoredRay], width: u32, x0: u32, y0: u32, x1: u32, y1: u32)
     let each = |f: &mut dyn FnMut(&Ray)| {
         for v in y0..y1 {
             for u in x0..x1 {
-                if let Some(r) = rays[(v * width + u) as usize].ray() {
+                if let Some(r) = rays[v as usize * width as usize + u as usize].ray() {
                     f(&r);
                 }
             }
