@@ -68,7 +68,13 @@ pub struct PreparedImage {
     data: Vec<u8>,
     /// Scratch luma plane (unpadded) reused across frames.
     luma: Vec<u8>,
+    /// Mean luma of each [`BLOCK`] x [`BLOCK`] block, row-major (what the engine compares
+    /// between frames to see where the scene changed).
+    block_means: Vec<u8>,
 }
+
+/// Side of the blocks of [`PreparedImage::block_means`], pixels.
+pub const BLOCK: usize = 16;
 
 impl PreparedImage {
     /// An all-black image of the given size.
@@ -85,6 +91,7 @@ impl PreparedImage {
             channels: 3,
             data: vec![0; stride * (h + 2 * PAD)],
             luma: vec![0; w * h],
+            block_means: vec![0; w.div_ceil(BLOCK) * h.div_ceil(BLOCK)],
         })
     }
 
@@ -128,6 +135,11 @@ impl PreparedImage {
         let o = self.offset(x as isize, y as isize);
         [self.data[o], self.data[o + 1], self.data[o + 2]]
     }
+    /// Mean luma per 16x16 block, row-major, `width.div_ceil(16)` blocks a row.
+    pub fn block_means(&self) -> &[u8] {
+        &self.block_means
+    }
+
     /// Quantised gradient norm of pixel `(x, y)` (inside the image).
     pub fn gradient(&self, x: u32, y: u32) -> u8 {
         self.data[self.offset(x as isize, y as isize) + 3]
@@ -184,6 +196,7 @@ impl PreparedImage {
         }
         self.fill_gradient();
         self.replicate_border();
+        self.fill_block_means();
         Ok(())
     }
 
@@ -227,6 +240,23 @@ impl PreparedImage {
             }
         }
         lut
+    }
+
+    fn fill_block_means(&mut self) {
+        let (w, h) = (self.width, self.height);
+        let cols = w.div_ceil(BLOCK);
+        for (b, mean) in self.block_means.iter_mut().enumerate() {
+            let (bx, by) = ((b % cols) * BLOCK, (b / cols) * BLOCK);
+            let (x1, y1) = ((bx + BLOCK).min(w), (by + BLOCK).min(h));
+            let mut sum = 0u32;
+            for y in by..y1 {
+                sum += self.luma[y * w + bx..y * w + x1]
+                    .iter()
+                    .map(|&v| v as u32)
+                    .sum::<u32>();
+            }
+            *mean = (sum / ((x1 - bx) * (y1 - by)) as u32) as u8;
+        }
     }
 
     /// Sobel gradient norm of the luma, with the image edge replicated.

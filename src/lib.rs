@@ -1,3 +1,4 @@
+pub mod bench;
 pub mod calib;
 pub mod can;
 pub mod dataset;

@@ -23,6 +23,29 @@ struct Cli {
 enum Command {
     /// Run the evolution on a stereo pair or a hw-mock scenario and write what it found.
     Replay(ReplayArgs),
+    /// Time generations of the engine on a synthetic scene (single thread).
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Population size.
+    #[arg(long, default_value_t = EngineParams::default().flies)]
+    flies: usize,
+    /// Image size of the synthetic scene.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Generations timed (after a warm-up of 50).
+    #[arg(long, default_value_t = 3000)]
+    generations: u64,
+    /// Generations per new frame (3 = 30 fps at ~10 ms a generation, as the daemon runs).
+    #[arg(long, default_value_t = 3)]
+    generations_per_frame: u64,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args)]
@@ -45,6 +68,18 @@ struct ReplayArgs {
     /// Seed of the random generator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
+    /// pedestrian-steps-in, car-approaching.
+    #[arg(long)]
+    scenario: Option<String>,
+    /// With --scenario: generations per scenario frame (3 = 30 fps at ~10 ms a generation).
+    #[arg(long, default_value_t = 3)]
+    generations_per_frame: u64,
+    /// With --scenario: image size.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
@@ -54,10 +89,14 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Replay(args) => replay_command(args),
+        Command::Bench(args) => bench_command(args),
     }
 }
 
 fn replay_command(args: ReplayArgs) -> Result<()> {
+    if let Some(name) = &args.scenario {
+        return replay_scenario(&args, name);
+    }
     let (Some(left_path), Some(right_path), Some(calib_path)) =
         (&args.left, &args.right, &args.calib)
     else {
@@ -114,6 +153,73 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
     }
     replay::write_outputs(&args.out, &engine, &left, &trace)?;
     print_summary(&engine, 1, &mut times, &args.out)
+}
+
+fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
+    let scenario = hw_mock::Scenario::by_name(name).with_context(|| {
+        format!(
+            "unknown scenario '{name}' (known: {})",
+            hw_mock::Scenario::names().join(", ")
+        )
+    })?;
+    let k = args.generations_per_frame.max(1);
+    let frames = scenario.frame_count() as u64;
+    let generations = args.generations.unwrap_or(frames * k);
+    let mut mock = flyd::mock::MockStereo::new(scenario, args.width, args.height)?;
+    let params = EngineParams {
+        flies: args.flies,
+        seed: args.seed,
+        ..EngineParams::default()
+    };
+    let mut engine = Engine::new(mock.rig(), params).context("cannot start the engine")?;
+    let (w, h) = mock.size();
+    let mut frame = StereoFrame::new(
+        PreparedImage::new(w, h)?,
+        PreparedImage::new(w, h)?,
+        u64::MAX,
+    );
+    let mut left_rgb = image::RgbImage::new(w, h);
+    let mut times = Vec::with_capacity(generations as usize);
+    let mut trace = Vec::with_capacity(generations as usize);
+    let mut index = u64::MAX;
+    for g in 0..generations {
+        let wanted = g / k;
+        if wanted != index {
+            index = wanted;
+            let (l, r) = mock.frame(index as u32)?;
+            frame.left.prepare(PixelFormat::Rgb8, l)?;
+            frame.right.prepare(PixelFormat::Rgb8, r)?;
+            frame.id = index;
+            left_rgb.copy_from_slice(l);
+        }
+        let t = Instant::now();
+        let stats = engine.step(&frame)?;
+        let elapsed = t.elapsed();
+        times.push(elapsed);
+        trace.push(TraceRow {
+            frame: index,
+            stats,
+            elapsed,
+        });
+    }
+    replay::write_outputs(&args.out, &engine, &left_rgb, &trace)?;
+    print_summary(&engine, index.wrapping_add(1), &mut times, &args.out)
+}
+
+fn bench_command(args: BenchArgs) -> Result<()> {
+    let report = flyd::bench::generations(&flyd::bench::GenerationBench {
+        flies: args.flies,
+        width: args.width,
+        height: args.height,
+        generations: args.generations,
+        generations_per_frame: args.generations_per_frame,
+    })?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("{report}");
+    }
+    Ok(())
 }
 
 fn print_summary(

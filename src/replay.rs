@@ -3,7 +3,8 @@
 //! Outputs, in the output directory:
 //! - `flies.csv`: one fly a row, `x,y,z,fitness,warning,u_left,v_left,u_right,v_right` (metres,
 //!   pixels; `fitness` is the value selection ranks by, after the region of interest and
-//!   sharing; flies outside an image have empty projections);
+//!   sharing; `warning` is computed from the fitness *before* sharing, see [`crate::engine`];
+//!   flies outside an image have empty projections);
 //! - `overlay.png`: the left image with the best 250 flies as crosses (the paper's figures 5, 7);
 //! - `warnings.png`: each fly a spot as dark as its warning (figures 6, 8);
 //! - `trace.csv`: one row a generation (frame index, global warning, danger, time).

@@ -311,6 +311,7 @@ fn flies_outside_an_image_get_the_worst_fitness() {
     // Indexes are stable in the first generation (no reproduction yet).
     for i in [0, 1] {
         assert_eq!(p.fitness[i], 0.0);
+        assert_eq!(p.raw_fitness[i], 0.0);
         assert_eq!(p.warning[i], 0.0);
         assert!(p.u_left[i].is_nan());
     }
@@ -375,7 +376,7 @@ fn danger_is_independent_of_the_fitness_scale() {
         e.step(&frame).expect("step");
     }
     let (w1, d1, _) = e.warnings();
-    for f in e.pop.fitness.iter_mut() {
+    for f in e.pop.raw_fitness.iter_mut() {
         *f *= 8.0;
     }
     let (w8, d8, _) = e.warnings();
