@@ -217,6 +217,12 @@ mod tests {
     }
 
     #[test]
+    fn mock_stereo_can_move_to_a_capture_thread() {
+        fn send<T: Send>() {}
+        send::<MockStereo>();
+    }
+
+    #[test]
     fn frames_are_deterministic_and_sized() {
         let scenario = Scenario::by_name("pedestrian-steps-in").expect("exists");
         let mut a = MockStereo::new(scenario.clone(), 64, 48).expect("valid");
