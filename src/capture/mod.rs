@@ -11,5 +11,7 @@
 //! loudly where no device exists.
 
 pub mod convert;
+pub mod v4l2;
 
 pub use convert::{CaptureFormat, ConvertError, FrameConverter, MjpegDecoder};
+pub use v4l2::{V4l2Config, V4l2ConfigError, V4l2Source};
