@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod calib;
 pub mod can;
+pub mod capture;
 pub mod dataset;
 pub mod decision;
 pub mod engine;
