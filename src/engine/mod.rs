@@ -376,7 +376,9 @@ impl Engine {
             self.pop.move_fly(dst, src);
             src += 1;
         }
-        self.mates.index(&self.pop.cell[..keep]);
+        if self.params.local_mating > 0.0 {
+            self.mates.index(&self.pop.cell[..keep]);
+        }
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
         let local = (self.params.local_mating * 4_294_967_296.0).min(u32::MAX as f64) as u32;
