@@ -110,20 +110,7 @@ impl<'a> Kernel<'a> {
         let r = R as isize;
         let rows = 2 * R + 1;
         let row_step = self.row_step;
-        left.project_batch(
-            &pop.x[from..],
-            &pop.y[from..],
-            &pop.z[from..],
-            &mut pop.u_left[from..],
-            &mut pop.v_left[from..],
-        );
-        right.project_batch(
-            &pop.x[from..],
-            &pop.y[from..],
-            &pop.z[from..],
-            &mut pop.u_right[from..],
-            &mut pop.v_right[from..],
-        );
+        pop.project(left, right, from);
         let roi = self.roi.map(|roi| {
             (
                 roi.min_height as f32,
