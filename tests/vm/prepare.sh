@@ -188,11 +188,15 @@ if [[ ! -f "$base" ]]; then
     log "modules in load order: $(cut -d' ' -f1 "$r/etc/vm-modules" | tr '\n' ' ')"
 
     cpio_newc "$r" | zstd -q -T0 -10 >"$tmp/base.cpio.zst"
-    rm -f "$kdir"/base-*.cpio.zst
     mv "$tmp/base.cpio.zst" "$base"
     rm -rf "$tmp"
     log "base initramfs assembled in $((SECONDS - t0)) s ($(du -h "$base" | cut -f1))"
 fi
+
+# Another worktree may be booting an older base (its own init): prune only those unused for a
+# few days. Using a base marks it used.
+touch "$base"
+find "$kdir" -maxdepth 1 -name 'base-*.cpio.zst' -mtime +3 -delete
 
 echo "KVER=$kver"
 echo "KERNEL=$kdir/kernel"
