@@ -63,6 +63,18 @@ vm_can_is_up() {
     [ $(($(cat "/sys/class/net/$1/flags") & 1)) -eq 1 ]
 }
 
+# vm_can_receivers IFACE: prints how many CAN sockets receive on IFACE (all filter lists in
+# /proc/net/can), so a scenario can wait until a listener (candump, flyd) has bound before
+# sending: vm_wait_for 10 vm_can_receivers_above "$FLYD_CAN" "$before"
+vm_can_receivers() {
+    cat /proc/net/can/rcvlist_* 2>/dev/null | grep -c "^ *$1 " || true
+}
+
+# vm_can_receivers_above IFACE N: true when more than N sockets receive on IFACE.
+vm_can_receivers_above() {
+    [ "$(vm_can_receivers "$1")" -gt "$2" ]
+}
+
 # Exports the scenario environment, failing with a message when a device is missing.
 vm_scenario_env() {
     FLYD_CAN=vcan0
