@@ -3,6 +3,7 @@
 //! ```text
 //! v4l2-smoke produce DEVICE CAMERA FRAMES FPS   set VIDEO_OUTPUT YUYV 64x48, write FRAMES frames
 //! v4l2-smoke capture DEVICE CAMERA FRAMES FILE  mmap-stream FRAMES frames, check, append to FILE
+//! v4l2-smoke grab DEVICE FRAMES FILE            mmap-stream FRAMES frames, unchecked, to FILE
 //! ```
 //!
 //! The producer uses `VIDIOC_S_FMT` on the output side and plain `write()`, as a feeder would;
@@ -36,9 +37,11 @@ fn main() -> Result<()> {
         ["capture", device, camera, frames, out] => {
             capture(device, camera.parse()?, frames.parse()?, out)
         }
+        ["grab", device, frames, out] => grab(device, frames.parse()?, out),
         _ => bail!(
             "usage: v4l2-smoke produce DEVICE CAMERA FRAMES FPS\n       \
-             v4l2-smoke capture DEVICE CAMERA FRAMES FILE"
+             v4l2-smoke capture DEVICE CAMERA FRAMES FILE\n       \
+             v4l2-smoke grab DEVICE FRAMES FILE"
         ),
     }
 }
@@ -120,6 +123,26 @@ fn capture(device: &str, camera: u8, frames: u32, out_path: &str) -> Result<()> 
         "capture: {device} {frames} frames checked, last index {}",
         last.unwrap_or(0)
     );
+    Ok(())
+}
+
+/// Saves FRAMES captured frames (whatever their content: the feeder's, checked on the host).
+fn grab(device: &str, frames: u32, out_path: &str) -> Result<()> {
+    let dev = Device::with_path(device).with_context(|| format!("opening {device}"))?;
+    let format = Capture::format(&dev).with_context(|| format!("VIDIOC_G_FMT on {device}"))?;
+    eprintln!("grab: {device} format {format}");
+    let mut out = File::create(out_path).with_context(|| format!("creating {out_path}"))?;
+    let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, 4)
+        .with_context(|| format!("mmap buffers on {device}"))?;
+    stream.set_timeout(Duration::from_secs(10));
+    for n in 0..frames {
+        let (buf, meta) = stream
+            .next()
+            .with_context(|| format!("dequeuing frame {n} from {device}"))?;
+        out.write_all(&buf[..meta.bytesused as usize])?;
+    }
+    out.sync_all()?;
+    eprintln!("grab: {device} {frames} frames saved");
     Ok(())
 }
 
