@@ -1,5 +1,6 @@
 pub mod calib;
 pub mod can;
+pub mod config;
 pub mod dataset;
 pub mod decision;
 pub mod engine;
