@@ -1,6 +1,7 @@
 pub mod calib;
 pub mod can;
 pub mod config;
+pub mod daemon;
 pub mod dataset;
 pub mod decision;
 pub mod engine;
