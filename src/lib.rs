@@ -7,4 +7,5 @@ pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;
+pub mod logging;
 pub mod source;
