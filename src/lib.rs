@@ -1,5 +1,7 @@
+pub mod bench;
 pub mod calib;
 pub mod can;
+pub mod capture;
 pub mod config;
 pub mod daemon;
 pub mod dataset;
@@ -8,4 +10,6 @@ pub mod engine;
 pub mod frame;
 pub mod geometry;
 pub mod logging;
+pub mod mock;
+pub mod replay;
 pub mod source;

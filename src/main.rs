@@ -1,17 +1,19 @@
-//! `flyd`: the command line. Glue only; the work lives in the library.
+//! The `flyd` command: glue between the command line and the library.
 
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use flyd::engine::{Engine, EngineParams};
+use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd::replay::{self, Summary, Timing, TraceRow};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
-
-use anyhow::Context;
-use clap::{Parser, Subcommand};
+use std::time::{Duration, Instant};
 
 use flyd::config::{self, CanTarget, DaemonConfig};
 use flyd::daemon::{self, MonotonicClock, Shutdown, hardware};
 use flyd::logging::{self, LogTarget};
 
-#[derive(Debug, Parser)]
+#[derive(Parser)]
 #[command(
     name = "flyd",
     version,
@@ -19,11 +21,15 @@ use flyd::logging::{self, LogTarget};
 )]
 struct Cli {
     #[command(subcommand)]
-    command: Cmd,
+    command: Command,
 }
 
-#[derive(Debug, Subcommand)]
-enum Cmd {
+#[derive(Subcommand)]
+enum Command {
+    /// Run the evolution on a stereo pair or a hw-mock scenario and write what it found.
+    Replay(ReplayArgs),
+    /// Time generations of the engine on a synthetic scene (single thread).
+    Bench(BenchArgs),
     /// Run the daemon: cameras -> fly evolution -> CLEAR/SLOW/STOP on CAN.
     Run(RunArgs),
     /// Check a configuration file (and its calibration) without opening any device.
@@ -33,7 +39,65 @@ enum Cmd {
     },
 }
 
-#[derive(Debug, clap::Args)]
+#[derive(Args)]
+struct BenchArgs {
+    /// Population size.
+    #[arg(long, default_value_t = EngineParams::default().flies)]
+    flies: usize,
+    /// Image size of the synthetic scene.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Generations timed (after a warm-up of 50).
+    #[arg(long, default_value_t = 3000)]
+    generations: u64,
+    /// Generations per new frame (3 = 30 fps at ~10 ms a generation, as the daemon runs).
+    #[arg(long, default_value_t = 3)]
+    generations_per_frame: u64,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// Left image (PNG or JPEG).
+    #[arg(long, requires_all = ["right", "calib"], conflicts_with = "scenario")]
+    left: Option<PathBuf>,
+    /// Right image (PNG or JPEG).
+    #[arg(long)]
+    right: Option<PathBuf>,
+    /// Calibration: flyd rig TOML, Middlebury calib.txt or OpenCV stereo YAML.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+    /// Generations to run (default: 50 on a stereo pair, the whole scenario otherwise).
+    #[arg(long)]
+    generations: Option<u64>,
+    /// Population size.
+    #[arg(long, default_value_t = EngineParams::default().flies)]
+    flies: usize,
+    /// Seed of the random generator.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
+    /// pedestrian-steps-in, car-approaching.
+    #[arg(long)]
+    scenario: Option<String>,
+    /// With --scenario: generations per scenario frame (3 = 30 fps at ~10 ms a generation).
+    #[arg(long, default_value_t = 3)]
+    generations_per_frame: u64,
+    /// With --scenario: image size.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Debug, Args)]
 struct RunArgs {
     /// The TOML configuration file.
     #[arg(long)]
@@ -50,8 +114,10 @@ struct RunArgs {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Cmd::Run(args) => cmd_run(&args),
-        Cmd::CheckConfig { file } => cmd_check_config(&file),
+        Command::Replay(args) => replay_command(args),
+        Command::Bench(args) => bench_command(args),
+        Command::Run(args) => cmd_run(&args),
+        Command::CheckConfig { file } => cmd_check_config(&file),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -60,6 +126,156 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn replay_command(args: ReplayArgs) -> Result<()> {
+    if let Some(name) = &args.scenario {
+        return replay_scenario(&args, name);
+    }
+    let (Some(left_path), Some(right_path), Some(calib_path)) =
+        (&args.left, &args.right, &args.calib)
+    else {
+        bail!("replay needs --left, --right and --calib (or --scenario)");
+    };
+    let cal = flyd::calib::load(calib_path)?;
+    let left = replay::load_rgb(left_path)?;
+    let right = replay::load_rgb(right_path)?;
+    for (name, img, cam) in [
+        ("left", &left, &cal.rig.left),
+        ("right", &right, &cal.rig.right),
+    ] {
+        if img.dimensions() != (cam.width(), cam.height()) {
+            bail!(
+                "{name} image is {}x{} but {} describes a {}x{} camera",
+                img.width(),
+                img.height(),
+                calib_path.display(),
+                cam.width(),
+                cam.height()
+            );
+        }
+    }
+    let mut params = EngineParams {
+        flies: args.flies,
+        seed: args.seed,
+        ..EngineParams::default()
+    };
+    if let Some((min, max)) = cal.depth_range {
+        params.min_depth = min;
+        params.max_depth = max;
+    }
+    if !cal.has_road {
+        params.roi = None;
+    }
+    let mut engine = Engine::new(&cal.rig, params).context("cannot start the engine")?;
+    let prep = |img: &image::RgbImage| {
+        PreparedImage::from_pixels(img.width(), img.height(), PixelFormat::Rgb8, img.as_raw())
+    };
+    let frame = StereoFrame::new(prep(&left)?, prep(&right)?, 0);
+    let generations = args.generations.unwrap_or(50);
+    let mut times = Vec::with_capacity(generations as usize);
+    let mut trace = Vec::with_capacity(generations as usize);
+    for _ in 0..generations {
+        let t = Instant::now();
+        let stats = engine.step(&frame)?;
+        let elapsed = t.elapsed();
+        times.push(elapsed);
+        trace.push(TraceRow {
+            frame: 0,
+            stats,
+            elapsed,
+        });
+    }
+    replay::write_outputs(&args.out, &engine, &left, &trace)?;
+    print_summary(&engine, 1, &mut times, &args.out)
+}
+
+fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
+    let scenario = hw_mock::Scenario::by_name(name).with_context(|| {
+        format!(
+            "unknown scenario '{name}' (known: {})",
+            hw_mock::Scenario::names().join(", ")
+        )
+    })?;
+    let k = args.generations_per_frame.max(1);
+    let frames = scenario.frame_count() as u64;
+    let generations = args.generations.unwrap_or(frames * k);
+    let mut mock = flyd::mock::MockStereo::new(scenario, args.width, args.height)?;
+    let params = EngineParams {
+        flies: args.flies,
+        seed: args.seed,
+        ..EngineParams::default()
+    };
+    let mut engine = Engine::new(mock.rig(), params).context("cannot start the engine")?;
+    let (w, h) = mock.size();
+    let mut frame = StereoFrame::new(
+        PreparedImage::new(w, h)?,
+        PreparedImage::new(w, h)?,
+        u64::MAX,
+    );
+    let mut left_rgb = image::RgbImage::new(w, h);
+    let mut times = Vec::with_capacity(generations as usize);
+    let mut trace = Vec::with_capacity(generations as usize);
+    let mut index = u64::MAX;
+    for g in 0..generations {
+        let wanted = g / k;
+        if wanted != index {
+            index = wanted;
+            let (l, r) = mock.frame(index as u32)?;
+            frame.left.prepare(PixelFormat::Rgb8, l)?;
+            frame.right.prepare(PixelFormat::Rgb8, r)?;
+            frame.id = index;
+            left_rgb.copy_from_slice(l);
+        }
+        let t = Instant::now();
+        let stats = engine.step(&frame)?;
+        let elapsed = t.elapsed();
+        times.push(elapsed);
+        trace.push(TraceRow {
+            frame: index,
+            stats,
+            elapsed,
+        });
+    }
+    replay::write_outputs(&args.out, &engine, &left_rgb, &trace)?;
+    print_summary(&engine, index.wrapping_add(1), &mut times, &args.out)
+}
+
+fn bench_command(args: BenchArgs) -> Result<()> {
+    let report = flyd::bench::generations(&flyd::bench::GenerationBench {
+        flies: args.flies,
+        width: args.width,
+        height: args.height,
+        generations: args.generations,
+        generations_per_frame: args.generations_per_frame,
+    })?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!("{report}");
+    }
+    Ok(())
+}
+
+fn print_summary(
+    engine: &Engine,
+    frames: u64,
+    times: &mut [Duration],
+    out: &std::path::Path,
+) -> Result<()> {
+    let stats = engine.stats();
+    let summary = Summary {
+        global_warning: stats.global_warning,
+        danger: stats.danger,
+        generations: stats.generation,
+        frames,
+        flies: engine.params().flies,
+        seed: engine.params().seed,
+        time_per_generation: Timing::of(times),
+        out_dir: out.display().to_string(),
+    };
+    println!("{}", serde_json::to_string_pretty(&summary)?);
+    Ok(())
 }
 
 /// `flyd check-config FILE`: what start-up checks, without devices.

@@ -1,6 +1,13 @@
 //! The fitness of the paper (section 3.1), evaluated in bulk:
 //!
-//! `F = |grad(M_L)| * |grad(M_R)| / (sum_colours sum_(i,j in N) (L(xL+i, yL+j) - R(xR+i, yR+j))^2 + floor)`
+//! `F = |grad(M_L)| * |grad(M_R)| / (sum_colours sum_(i,j in N) (L(xL+i, yL+j) - R(xR+i, yR+j))^2 / |N| + floor)`
+//!
+//! The sum of squared differences is divided by the number of compared samples |N| (pixels x
+//! channels): the same ranking as the paper's formula, but a fitness (and so a warning) that
+//! does not change scale with the neighbourhood size or the channel count. With frames
+//! photometrically normalised ([`crate::frame`]) it does not change with contrast or camera
+//! gain either, which is what makes warning thresholds portable across scenes and cameras.
+//! Units: gradients are Sobel norms / 4 of the normalised luma, differences grey levels.
 //!
 //! - Projections are rounded to the nearest pixel; a fly outside either image (or behind a
 //!   camera) gets the worst fitness, 0.
@@ -11,7 +18,7 @@
 //!   gradient byte, unused channels and the bytes past the window. Fixed widths let the compiler
 //!   turn each row into a handful of SIMD instructions on any x86-64 (SSE2 baseline), with no
 //!   `unsafe` and no runtime dispatch.
-//! - `floor = ssd_floor * samples` guards the division.
+//! - `floor = ssd_floor` (grey levels squared per sample) guards the division.
 //! - The road region of interest is applied here too (a multiplier on F).
 
 use super::Population;
@@ -25,6 +32,8 @@ pub(crate) struct Kernel<'a> {
     right: &'a PreparedImage,
     radius: usize,
     floor: f32,
+    /// Samples compared per fly, |N|.
+    samples: f32,
     roi: Option<RoadRoi>,
     channels: usize,
 }
@@ -54,6 +63,7 @@ impl<'a> Kernel<'a> {
             right: &frame.right,
             radius,
             floor: (params.ssd_floor * samples as f64) as f32,
+            samples: samples as f32,
             roi: params.roi,
             channels,
         }
@@ -153,7 +163,8 @@ impl<'a> Kernel<'a> {
                 continue;
             };
             let ssd = ssd::<W>(ld, lo, ls, rd, ro, rs, rows, mask, t);
-            let mut f = gl as f32 * gr as f32 / (ssd as f32 + self.floor);
+            // gl gr / (ssd / |N| + ssd_floor), written with one division.
+            let mut f = gl as f32 * gr as f32 * self.samples / (ssd as f32 + self.floor);
             if ys[i] > max_h || ys[i] < min_h || zs[i] > max_z {
                 f *= penalty;
             }

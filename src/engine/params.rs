@@ -38,6 +38,13 @@ pub struct EngineParams {
     pub survival_rate: f64,
     /// Fraction of the population replaced by fresh random flies every generation.
     pub immigration_rate: f64,
+    /// Fraction of immigrants drawn where the left image changed since the previous frame
+    /// (16x16 blocks whose mean luma moved by more than the noise), when something changed.
+    /// A new obstacle changes the image where it appears; the rest are drawn uniformly.
+    pub guided_immigration: f64,
+    /// Fraction of crossovers whose second parent is drawn from the first parent's sharing
+    /// cell (mating restriction) rather than from all survivors. 0 is the paper's operator.
+    pub local_mating: f64,
     /// Probability that each coordinate of an offspring is mutated (paper: 40 %).
     pub mutation_rate: f64,
     /// Standard deviation of the Gaussian mutation, relative to the fly's depth: a fly at z metres
@@ -71,10 +78,12 @@ impl Default for EngineParams {
         Self {
             flies: 5000,
             survival_rate: 0.4,
-            immigration_rate: 0.1,
+            immigration_rate: 0.05,
+            guided_immigration: 0.75,
+            local_mating: 0.0,
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
-            neighbourhood_radius: 2,
+            neighbourhood_radius: 3,
             ssd_floor: 1.0,
             sharing_cell_px: 8,
             sharing_exponent: 1.0,
@@ -116,6 +125,8 @@ impl EngineParams {
         unit("survival_rate", self.survival_rate)?;
         unit("immigration_rate", self.immigration_rate)?;
         unit("mutation_rate", self.mutation_rate)?;
+        unit("local_mating", self.local_mating)?;
+        unit("guided_immigration", self.guided_immigration)?;
         let keep = self.survivors();
         if keep < 2 {
             return err("survival_rate", "must keep at least 2 flies".into());

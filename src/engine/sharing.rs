@@ -76,6 +76,68 @@ impl Grid {
     }
 }
 
+/// Survivors grouped by sharing cell, for mating restriction: a crossover between two flies on
+/// the same few pixels interpolates along one surface (or along one line of sight, a search in
+/// depth), where a crossover with a random mate lands between unrelated objects. This is what
+/// lets a newly found obstacle fill with flies in a few generations. Counting sort: O(survivors
+/// + cells), no allocation.
+#[derive(Debug, Clone)]
+pub(crate) struct Mates {
+    /// `start[c]..start[c + 1]` indexes `members` for cell c.
+    start: Vec<u32>,
+    members: Vec<u32>,
+}
+
+impl Mates {
+    pub(crate) fn new(width: u32, height: u32, cell_px: u32, flies: usize) -> Self {
+        let cells = (width.div_ceil(cell_px) * height.div_ceil(cell_px)) as usize;
+        Self {
+            start: vec![0; cells + 1],
+            members: vec![0; flies],
+        }
+    }
+
+    /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
+    pub(crate) fn index(&mut self, cells: &[u32]) {
+        let n_cells = self.start.len() - 1;
+        self.start.fill(0);
+        for &c in cells {
+            if (c as usize) < n_cells {
+                self.start[c as usize + 1] += 1;
+            }
+        }
+        for c in 0..n_cells {
+            self.start[c + 1] += self.start[c];
+        }
+        // `start[c]` is used as the insertion cursor, then restored by shifting back.
+        for (i, &c) in cells.iter().enumerate() {
+            if (c as usize) < n_cells {
+                let at = self.start[c as usize] as usize;
+                if let Some(m) = self.members.get_mut(at) {
+                    *m = i as u32;
+                }
+                self.start[c as usize] += 1;
+            }
+        }
+        for c in (1..=n_cells).rev() {
+            self.start[c] = self.start[c - 1];
+        }
+        self.start[0] = 0;
+    }
+
+    /// A member of `cell` chosen with 32 random bits, or `None` if the cell is empty.
+    #[inline]
+    pub(crate) fn pick(&self, cell: u32, bits: u32) -> Option<usize> {
+        let c = cell as usize;
+        let (lo, hi) = (*self.start.get(c)?, *self.start.get(c + 1)?);
+        if hi <= lo {
+            return None;
+        }
+        let k = lo + (((hi - lo) as u64 * bits as u64) >> 32) as u32;
+        self.members.get(k as usize).map(|&m| m as usize)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -129,6 +191,19 @@ mod tests {
         let mut p = pop(&[(1.0, 1.0, 8.0); 4]);
         apply(&mut Grid::new(64, 64, 8, 0.5, 4), &mut p);
         assert_eq!(p.fitness, vec![4.0; 4]);
+    }
+
+    #[test]
+    fn mates_come_from_the_same_cell() {
+        let mut m = Mates::new(32, 16, 8, 6); // 4 x 2 cells
+        m.index(&[5, 0, 5, u32::MAX, 7, 5]);
+        let pick = |cell, k: u32| m.pick(cell, k.wrapping_mul(0x4000_0000));
+        let in5: std::collections::BTreeSet<usize> = (0..4).filter_map(|k| pick(5, k)).collect();
+        assert_eq!(in5, [0, 2, 5].into_iter().collect());
+        assert_eq!(pick(0, 3), Some(1));
+        assert_eq!(pick(7, 0), Some(4));
+        assert_eq!(pick(3, 0), None);
+        assert_eq!(pick(u32::MAX, 0), None);
     }
 
     #[test]

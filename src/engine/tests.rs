@@ -311,6 +311,7 @@ fn flies_outside_an_image_get_the_worst_fitness() {
     // Indexes are stable in the first generation (no reproduction yet).
     for i in [0, 1] {
         assert_eq!(p.fitness[i], 0.0);
+        assert_eq!(p.raw_fitness[i], 0.0);
         assert_eq!(p.warning[i], 0.0);
         assert!(p.u_left[i].is_nan());
     }
@@ -365,30 +366,50 @@ fn wrong_frame_size_is_an_error() {
 }
 
 #[test]
-fn danger_is_independent_of_contrast() {
-    // Halving the contrast of both images changes the fitness scale, not the danger.
+fn danger_is_independent_of_the_fitness_scale() {
+    // Whatever scales every fitness (contrast, gain, window size) scales the global warning
+    // and leaves the danger as it is.
     let rig = rig();
     let frame = wall_frame(&rig, 3.0, 5, 1);
-    let dim = |img: &PreparedImage, cam: &Camera| {
-        let px = render_wall(cam, 3.0, 5);
-        let half: Vec<u8> = px.iter().map(|&v| v / 2).collect();
-        let _ = img;
-        PreparedImage::from_pixels(cam.width(), cam.height(), PixelFormat::Rgb8, &half).unwrap()
+    let mut e = Engine::new(&rig, params(1500, 8)).expect("engine");
+    for _ in 0..10 {
+        e.step(&frame).expect("step");
+    }
+    let (w1, d1, _) = e.warnings();
+    for f in e.pop.raw_fitness.iter_mut() {
+        *f *= 8.0;
+    }
+    let (w8, d8, _) = e.warnings();
+    assert!((w8 / w1 - 8.0).abs() < 1e-4, "{w1} {w8}");
+    assert!((d8 / d1 - 1.0).abs() < 1e-5, "{d1} {d8}");
+}
+
+#[test]
+fn a_gain_difference_between_the_cameras_changes_little() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 3.0, 5, 1);
+    let bright = {
+        let px: Vec<u8> = render_wall(&rig.right, 3.0, 5)
+            .iter()
+            .map(|&v| (v as f32 * 0.8 + 30.0) as u8)
+            .collect();
+        let right = PreparedImage::from_pixels(160, 120, PixelFormat::Rgb8, &px).unwrap();
+        StereoFrame::new(frame.left.clone(), right, 1)
     };
-    let dim_frame = StereoFrame::new(
-        dim(&frame.left, &rig.left),
-        dim(&frame.right, &rig.right),
-        1,
-    );
     let run = |f: &StereoFrame| {
         let mut e = Engine::new(&rig, params(1500, 8)).expect("engine");
-        let mut s = GenerationStats::default();
         for _ in 0..30 {
-            s = e.step(f).expect("step");
+            e.step(f).expect("step");
         }
-        s
+        let p = e.population();
+        let on_wall = p
+            .best(200)
+            .iter()
+            .filter(|&&i| (p.z[i] - 3.0).abs() < 0.25)
+            .count();
+        (e.stats(), on_wall)
     };
-    let (a, b) = (run(&frame), run(&dim_frame));
-    assert!(a.global_warning > 2.0 * b.global_warning, "{a:?} {b:?}");
+    let ((a, on_a), (b, on_b)) = (run(&frame), run(&bright));
+    assert!(on_a >= 180 && on_b >= 180, "{on_a} {on_b}");
     assert!((a.danger / b.danger - 1.0).abs() < 0.25, "{a:?} {b:?}");
 }

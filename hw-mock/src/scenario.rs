@@ -1,0 +1,170 @@
+//! Scripted scenarios: sequences of scenes at a fixed frame rate, with the ground truth a
+//! reaction-time measurement needs. The vehicle is stationary: the world frame is the vehicle
+//! frame, and only obstacles move.
+
+use crate::world::{Obstacle, Scene};
+
+const FPS: f64 = 30.0;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    EmptyRoad,
+    Pedestrian4m,
+    PedestrianStepsIn,
+    CarApproaching,
+}
+
+/// Frame at which the pedestrian of `pedestrian-steps-in` appears.
+const STEP_IN_FRAME: u32 = 30;
+/// Where it appears (inside the lane, right of centre) and how fast it walks to the centre.
+const STEP_IN_X: f64 = 0.6;
+const WALK_SPEED: f64 = 1.4;
+/// Range of the approaching car's rear over the scenario, metres.
+const CAR_FROM: f64 = 25.0;
+const CAR_TO: f64 = 5.0;
+
+/// A named, deterministic sequence of scenes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scenario {
+    name: &'static str,
+    description: &'static str,
+    kind: Kind,
+    frames: u32,
+}
+
+const ALL: [Scenario; 4] = [
+    Scenario {
+        name: "empty-road",
+        description: "Nothing in the lane; roadside walls, poles and trees only.",
+        kind: Kind::EmptyRoad,
+        frames: 150,
+    },
+    Scenario {
+        name: "pedestrian-4m",
+        description: "A pedestrian standing in the lane centre, body axis 4 m ahead, from the first frame.",
+        kind: Kind::Pedestrian4m,
+        frames: 150,
+    },
+    Scenario {
+        name: "pedestrian-steps-in",
+        description: "Empty until frame 30; then a pedestrian 4 m ahead at x = 0.6 m walks to the lane centre at 1.4 m/s and stays.",
+        kind: Kind::PedestrianStepsIn,
+        frames: 150,
+    },
+    Scenario {
+        name: "car-approaching",
+        description: "A car in the lane whose rear closes linearly from 25 m to 5 m over the scenario (~4 m/s).",
+        kind: Kind::CarApproaching,
+        frames: 150,
+    },
+];
+
+impl Scenario {
+    /// Names accepted by [`Scenario::by_name`].
+    pub fn names() -> Vec<&'static str> {
+        ALL.iter().map(|s| s.name).collect()
+    }
+
+    pub fn by_name(name: &str) -> Option<Self> {
+        ALL.iter().find(|s| s.name == name).cloned()
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.name
+    }
+
+    pub fn description(&self) -> &'static str {
+        self.description
+    }
+
+    pub fn frame_count(&self) -> u32 {
+        self.frames
+    }
+
+    pub fn fps(&self) -> f64 {
+        FPS
+    }
+
+    /// The scene at `frame`. Frames past the end hold the last scene, so a consumer that runs
+    /// longer than the script sees a still world rather than an error.
+    pub fn scene_at(&self, frame: u32) -> Scene {
+        let f = frame.min(self.frames.saturating_sub(1));
+        let seconds = |from: u32| f64::from(f.saturating_sub(from)) / FPS;
+        match self.kind {
+            Kind::EmptyRoad => Scene::empty(),
+            Kind::Pedestrian4m => Scene::with(vec![Obstacle::pedestrian(0.0, 4.0)]),
+            Kind::PedestrianStepsIn => {
+                if f < STEP_IN_FRAME {
+                    Scene::empty()
+                } else {
+                    let x = (STEP_IN_X - WALK_SPEED * seconds(STEP_IN_FRAME)).max(0.0);
+                    Scene::with(vec![Obstacle::pedestrian(x, 4.0)])
+                }
+            }
+            Kind::CarApproaching => {
+                let last = self.frames.saturating_sub(1).max(1);
+                let w = f64::from(f) / f64::from(last);
+                Scene::with(vec![Obstacle::car(0.0, CAR_FROM + (CAR_TO - CAR_FROM) * w)])
+            }
+        }
+    }
+
+    /// First frame whose scene has an obstacle in the vehicle's lane
+    /// ([`Scene::obstacle_in_lane`]): the start of a reaction-time measurement.
+    pub fn first_obstacle_frame(&self) -> Option<u32> {
+        (0..self.frames).find(|&f| self.scene_at(f).obstacle_in_lane())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_name_resolves() {
+        for name in Scenario::names() {
+            let s = Scenario::by_name(name).expect("listed names resolve");
+            assert_eq!(s.name(), name);
+            assert_eq!(s.fps(), 30.0);
+            assert!(s.frame_count() >= 150);
+        }
+        assert!(Scenario::by_name("nope").is_none());
+    }
+
+    #[test]
+    fn first_obstacle_frames() {
+        let first = |n| Scenario::by_name(n).and_then(|s| s.first_obstacle_frame());
+        assert_eq!(first("empty-road"), None);
+        assert_eq!(first("pedestrian-4m"), Some(0));
+        assert_eq!(first("pedestrian-steps-in"), Some(30));
+        assert_eq!(first("car-approaching"), Some(0));
+    }
+
+    #[test]
+    fn pedestrian_steps_in_and_stays() {
+        let s = Scenario::by_name("pedestrian-steps-in").expect("exists");
+        assert!(s.scene_at(29).obstacles.is_empty());
+        let x_at = |f| match s.scene_at(f).obstacles[0] {
+            Obstacle::Cylinder { x, z, .. } => {
+                assert_eq!(z, 4.0);
+                x
+            }
+            Obstacle::Box { .. } => panic!("a pedestrian is a cylinder"),
+        };
+        assert_eq!(x_at(30), 0.6);
+        assert!(x_at(35) < 0.6 && x_at(35) > 0.0);
+        assert_eq!(x_at(60), 0.0);
+        assert_eq!(x_at(149), 0.0);
+        // Past the end: the last scene.
+        assert_eq!(s.scene_at(10_000), s.scene_at(149));
+    }
+
+    #[test]
+    fn car_closes_from_25_to_5() {
+        let s = Scenario::by_name("car-approaching").expect("exists");
+        let rear = |f| s.scene_at(f).obstacles[0].footprint().2;
+        assert_eq!(rear(0), 25.0);
+        assert!((rear(s.frame_count() - 1) - 5.0).abs() < 1e-12);
+        assert!(rear(75) < rear(74));
+    }
+}

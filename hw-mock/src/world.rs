@@ -1,0 +1,967 @@
+//! The synthetic world: road, roadside, sky and obstacles, with ray intersection and shading.
+//!
+//! Everything is in the vehicle frame (metres; x right, y up from the road surface, z forward).
+//! Every surface's colour is a pure function of the surface point (world position for the road
+//! and sky, object-local coordinates for obstacles) and never of the camera that looks at it, so
+//! two cameras see the same texture at the same world point: the property a stereo matcher
+//! relies on. The only view-dependent effect, texture prefiltering against aliasing, is computed
+//! for a fixed nominal viewpoint ([`NOMINAL_EYE`], [`NOMINAL_FOCAL_PX`]) for the same reason.
+
+use crate::noise::{band_coverage, fbm, floor, lattice, periodic_coverage, value_noise};
+
+/// Half the width of the vehicle's lane: lane marks are centred on x = +-1.75 m.
+pub const LANE_HALF_WIDTH: f64 = 1.75;
+/// The asphalt ends (and the kerb starts) at |x| = 5 m.
+pub const ROAD_HALF_WIDTH: f64 = 5.0;
+/// Width of the kerb band beyond the asphalt, metres.
+pub const KERB_WIDTH: f64 = 0.25;
+/// Obstacles farther than this (z, metres) do not count as "in the lane" for
+/// [`Scene::obstacle_in_lane`]: beyond it they are not yet a hazard a test should time.
+pub const IN_LANE_MAX_RANGE: f64 = 60.0;
+/// Viewpoint for which textures are prefiltered: the simulated rig's centre.
+pub const NOMINAL_EYE: [f64; 3] = [0.0, 1.3, 0.0];
+/// Focal length (pixels) for which textures are prefiltered: the 640x480 simulated rig's.
+pub const NOMINAL_FOCAL_PX: f64 = 520.0;
+
+/// Hits closer than this along a ray are ignored (no self-intersection at the origin).
+const T_MIN: f64 = 1e-6;
+/// Extinction distance of the aerial haze, metres: distant surfaces fade into the horizon colour
+/// so the far road meets the sky without a hard, aliased seam.
+const HAZE_DISTANCE: f64 = 400.0;
+const SKY_HORIZON: [f64; 3] = [200.0, 208.0, 218.0];
+const SKY_ZENITH: [f64; 3] = [100.0, 145.0, 205.0];
+
+const SEED_ASPHALT: u64 = 0xA5F1_A17E;
+const SEED_KERB: u64 = 0x0C0B_B1E5;
+const SEED_GRASS: u64 = 0x06A5_5E5D;
+const SEED_PAINT: u64 = 0x9A17_7E57;
+const SEED_SKY: u64 = 0x05C7_C10D;
+
+// ---------------------------------------------------------------------------------------------
+// Small vector helpers: plain arrays keep the hot loops free of abstraction overhead.
+
+#[inline]
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+#[inline]
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+#[inline]
+fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+#[inline]
+fn lerp3(a: [f64; 3], b: [f64; 3], w: f64) -> [f64; 3] {
+    [
+        a[0] + (b[0] - a[0]) * w,
+        a[1] + (b[1] - a[1]) * w,
+        a[2] + (b[2] - a[2]) * w,
+    ]
+}
+#[inline]
+fn scale3(a: [f64; 3], k: f64) -> [f64; 3] {
+    [a[0] * k, a[1] * k, a[2] * k]
+}
+#[inline]
+fn rgb(c: [u8; 3]) -> [f64; 3] {
+    [f64::from(c[0]), f64::from(c[1]), f64::from(c[2])]
+}
+
+/// A ray in the vehicle frame: origin and unit direction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    pub origin: [f64; 3],
+    pub dir: [f64; 3],
+}
+
+impl Ray {
+    #[inline]
+    pub fn at(&self, t: f64) -> [f64; 3] {
+        [
+            self.origin[0] + t * self.dir[0],
+            self.origin[1] + t * self.dir[1],
+            self.origin[2] + t * self.dir[2],
+        ]
+    }
+}
+
+/// How a surface is textured. Coordinates are object-local (see [`Obstacle`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pattern {
+    /// Band-limited fractal noise: `cell` is the coarsest feature size (metres), `contrast` the
+    /// relative brightness swing (0 = flat colour, ~1 = strong).
+    Noise { cell: f64, contrast: f64 },
+    /// A pedestrian: shoes, jeans, belt, plaid shirt in the material colour, neck, face and hair
+    /// (plaid, not horizontal stripes, so the texture constrains horizontal disparity).
+    Clothes,
+    /// A car body in the material colour with dirt, bumper, number plate, tail lights, windows
+    /// and wheels.
+    Car,
+    /// Brickwork in the material colour, running bond.
+    Bricks,
+    /// A building facade in the material colour with a grid of windows.
+    Facade,
+}
+
+/// Surface colour and pattern. `seed` varies the noise between otherwise equal objects.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    pub colour: [u8; 3],
+    pub pattern: Pattern,
+    pub seed: u64,
+}
+
+/// An object standing on the road.
+///
+/// Texture coordinates are object-local: for a box face, `s` runs horizontally across the face
+/// from its centre and `h` is the height above the box bottom (top faces: `s` across x, `h`
+/// along z); for a cylinder, `s` is the arc length around the axis from the point facing the
+/// vehicle (-z) and `h` the height above the road. Moving an obstacle moves its texture with it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Obstacle {
+    /// Axis-aligned box between corners `min` and `max` (vehicle frame).
+    Box {
+        min: [f64; 3],
+        max: [f64; 3],
+        material: Material,
+    },
+    /// Vertical cylinder standing on the road: axis at (`x`, `z`), from y = 0 to `height`.
+    Cylinder {
+        x: f64,
+        z: f64,
+        radius: f64,
+        height: f64,
+        material: Material,
+    },
+}
+
+/// Which surface of an obstacle a ray hit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Face {
+    NegX,
+    PosX,
+    /// Box face on the top (+y) or bottom (-y).
+    Horizontal,
+    /// Box face facing the vehicle (normal -z): a car's rear as seen from behind.
+    NegZ,
+    PosZ,
+    /// Cylinder mantle.
+    Round,
+    /// Cylinder top.
+    Cap,
+}
+
+/// A ray-surface intersection with texture coordinates.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hit {
+    pub t: f64,
+    pub point: [f64; 3],
+    pub normal: [f64; 3],
+    pub face: Face,
+    /// Horizontal texture coordinate, metres, 0 at the face's centre (see [`Obstacle`]).
+    pub s: f64,
+    /// Vertical texture coordinate, metres above the object's bottom.
+    pub h: f64,
+}
+
+/// One rendered sample: colour (before any sensor effect), ground-truth z and ray distance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Sample {
+    pub rgb: [u8; 3],
+    pub depth: f32,
+    pub t: f64,
+}
+
+impl Obstacle {
+    /// A pedestrian standing with its body axis at (`x`, `z`): a cylinder of radius 0.25 m and
+    /// height 1.75 m in a strongly contrasted plaid shirt. Its nearest surface is at `z - 0.25`.
+    pub fn pedestrian(x: f64, z: f64) -> Self {
+        Obstacle::Cylinder {
+            x,
+            z,
+            radius: 0.25,
+            height: 1.75,
+            material: Material {
+                colour: [190, 45, 40],
+                pattern: Pattern::Clothes,
+                seed: 0x9ED0,
+            },
+        }
+    }
+
+    /// A car in the lane ahead, centred on `x`, its rear (the face we see) at distance `z`:
+    /// 1.8 m wide, 1.5 m high, 4.2 m long.
+    pub fn car(x: f64, z: f64) -> Self {
+        Obstacle::Box {
+            min: [x - 0.9, 0.0, z],
+            max: [x + 0.9, 1.5, z + 4.2],
+            material: Material {
+                colour: [45, 85, 150],
+                pattern: Pattern::Car,
+                seed: 0xCA2,
+            },
+        }
+    }
+
+    /// Whether the geometry is usable (finite, non-degenerate). Invalid obstacles are never hit,
+    /// so a bad scene renders without them instead of failing or panicking.
+    pub fn is_valid(&self) -> bool {
+        match *self {
+            Obstacle::Box { min, max, .. } => {
+                (0..3).all(|a| min[a].is_finite() && max[a].is_finite() && min[a] < max[a])
+            }
+            Obstacle::Cylinder {
+                x,
+                z,
+                radius,
+                height,
+                ..
+            } => {
+                x.is_finite()
+                    && z.is_finite()
+                    && radius.is_finite()
+                    && height.is_finite()
+                    && radius > 0.0
+                    && height > 0.0
+            }
+        }
+    }
+
+    /// Footprint on the road: (x_min, x_max, z_min, z_max).
+    pub fn footprint(&self) -> (f64, f64, f64, f64) {
+        match *self {
+            Obstacle::Box { min, max, .. } => (min[0], max[0], min[2], max[2]),
+            Obstacle::Cylinder { x, z, radius, .. } => {
+                (x - radius, x + radius, z - radius, z + radius)
+            }
+        }
+    }
+
+    pub fn material(&self) -> &Material {
+        match self {
+            Obstacle::Box { material, .. } | Obstacle::Cylinder { material, .. } => material,
+        }
+    }
+
+    /// Centre and radius of a sphere enclosing the obstacle (for culling), None if invalid.
+    pub(crate) fn bounding_sphere(&self) -> Option<([f64; 3], f64)> {
+        if !self.is_valid() {
+            return None;
+        }
+        Some(match *self {
+            Obstacle::Box { min, max, .. } => {
+                let c = [
+                    0.5 * (min[0] + max[0]),
+                    0.5 * (min[1] + max[1]),
+                    0.5 * (min[2] + max[2]),
+                ];
+                (c, 0.5 * norm(sub(max, min)))
+            }
+            Obstacle::Cylinder {
+                x,
+                z,
+                radius,
+                height,
+                ..
+            } => (
+                [x, 0.5 * height, z],
+                (radius * radius + 0.25 * height * height).sqrt(),
+            ),
+        })
+    }
+
+    /// Axis-aligned bounding box (min, max corners), None if invalid.
+    pub(crate) fn aabb(&self) -> Option<([f64; 3], [f64; 3])> {
+        if !self.is_valid() {
+            return None;
+        }
+        Some(match *self {
+            Obstacle::Box { min, max, .. } => (min, max),
+            Obstacle::Cylinder {
+                x,
+                z,
+                radius,
+                height,
+                ..
+            } => (
+                [x - radius, 0.0, z - radius],
+                [x + radius, height, z + radius],
+            ),
+        })
+    }
+
+    /// Nearest intersection in front of the ray's origin. Rays starting inside the object see
+    /// nothing of it (cameras are never inside obstacles).
+    pub(crate) fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        if !self.is_valid() {
+            return None;
+        }
+        self.intersect_valid(ray)
+    }
+
+    /// [`Obstacle::intersect`] for an obstacle already known to be valid (hot loops check once
+    /// per obstacle, not once per pixel).
+    #[inline]
+    pub(crate) fn intersect_valid(&self, ray: &Ray) -> Option<Hit> {
+        match *self {
+            Obstacle::Box { min, max, .. } => intersect_box(ray, min, max),
+            Obstacle::Cylinder {
+                x,
+                z,
+                radius,
+                height,
+                ..
+            } => intersect_cylinder(ray, x, z, radius, height),
+        }
+    }
+
+    /// The colour sample of a hit on this obstacle.
+    pub(crate) fn shade(&self, ray: &Ray, hit: &Hit) -> Sample {
+        let (_, along, dist) = footprint(hit.point, hit.normal);
+        let albedo = self.material().albedo(hit, along);
+        finish(albedo, hit.normal, dist, ray.at(hit.t)[2], hit.t)
+    }
+}
+
+fn intersect_box(ray: &Ray, min: [f64; 3], max: [f64; 3]) -> Option<Hit> {
+    let (o, d) = (ray.origin, ray.dir);
+    let mut t_near = f64::NEG_INFINITY;
+    let mut t_far = f64::INFINITY;
+    let mut axis = 0;
+    let mut entered_min_face = true;
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            // Parallel to this slab: inside it for every t, or never.
+            if o[a] < min[a] || o[a] > max[a] {
+                return None;
+            }
+            continue;
+        }
+        let inv = 1.0 / d[a];
+        let (t0, t1) = ((min[a] - o[a]) * inv, (max[a] - o[a]) * inv);
+        let (lo, hi, via_min) = if t0 <= t1 {
+            (t0, t1, true)
+        } else {
+            (t1, t0, false)
+        };
+        if lo > t_near {
+            t_near = lo;
+            axis = a;
+            entered_min_face = via_min;
+        }
+        t_far = t_far.min(hi);
+    }
+    // Written so that NaN (from degenerate input) means "no hit".
+    let hits = t_near <= t_far && t_near > T_MIN;
+    if !hits {
+        return None;
+    }
+    let p = ray.at(t_near);
+    let sign = if entered_min_face { -1.0 } else { 1.0 };
+    let mut normal = [0.0; 3];
+    normal[axis] = sign;
+    let q = sub(p, min);
+    let size = sub(max, min);
+    let (face, s, h) = match (axis, entered_min_face) {
+        (0, true) => (Face::NegX, q[2] - 0.5 * size[2], q[1]),
+        (0, false) => (Face::PosX, q[2] - 0.5 * size[2], q[1]),
+        (1, _) => (Face::Horizontal, q[0] - 0.5 * size[0], q[2]),
+        (_, true) => (Face::NegZ, q[0] - 0.5 * size[0], q[1]),
+        (_, false) => (Face::PosZ, q[0] - 0.5 * size[0], q[1]),
+    };
+    Some(Hit {
+        t: t_near,
+        point: p,
+        normal,
+        face,
+        s,
+        h,
+    })
+}
+
+fn intersect_cylinder(ray: &Ray, cx: f64, cz: f64, r: f64, height: f64) -> Option<Hit> {
+    let (o, d) = (ray.origin, ray.dir);
+    let (ox, oz) = (o[0] - cx, o[2] - cz);
+    let mut best: Option<Hit> = None;
+    let a = d[0] * d[0] + d[2] * d[2];
+    if a > 1e-18 {
+        let half_b = ox * d[0] + oz * d[2];
+        let c = ox * ox + oz * oz - r * r;
+        let disc = half_b * half_b - a * c;
+        // c > 0: the origin is outside the mantle, so the smaller root is the entry point.
+        if disc >= 0.0 && c > 0.0 {
+            let t = (-half_b - disc.sqrt()) / a;
+            let y = o[1] + t * d[1];
+            if t > T_MIN && (0.0..=height).contains(&y) {
+                let p = ray.at(t);
+                let (nx, nz) = ((p[0] - cx) / r, (p[2] - cz) / r);
+                best = Some(Hit {
+                    t,
+                    point: p,
+                    normal: [nx, 0.0, nz],
+                    face: Face::Round,
+                    // Angle 0 faces the vehicle (-z); arc length keeps texture scale in metres.
+                    s: r * nx.atan2(-nz),
+                    h: y,
+                });
+            }
+        }
+    }
+    if d[1] < 0.0 && o[1] > height {
+        let t = (height - o[1]) / d[1];
+        let p = ray.at(t);
+        let (px, pz) = (p[0] - cx, p[2] - cz);
+        if t > T_MIN && px * px + pz * pz <= r * r && best.is_none_or(|b| t < b.t) {
+            best = Some(Hit {
+                t,
+                point: p,
+                normal: [0.0, 1.0, 0.0],
+                face: Face::Cap,
+                s: px,
+                h: pz,
+            });
+        }
+    }
+    best
+}
+
+/// Pixel footprint on a surface seen from the nominal viewpoint: (across, along, distance).
+/// `across` is one pixel's width at that distance; `along` is stretched by the viewing obliquity
+/// (capped at 20x), the size to band-limit isotropic textures against.
+pub(crate) fn footprint(p: [f64; 3], n: [f64; 3]) -> (f64, f64, f64) {
+    let v = sub(NOMINAL_EYE, p);
+    let d = norm(v).max(1e-3);
+    let across = d / NOMINAL_FOCAL_PX;
+    let cos = (dot(n, v) / d).abs().max(0.05);
+    (across, across / cos, d)
+}
+
+/// Lambertian light: ambient plus a sun up, to the right and behind the vehicle, so faces that
+/// look at the cameras are lit and different faces of a box differ in brightness. Depends only
+/// on the surface normal, never on the viewer.
+#[inline]
+fn light(n: [f64; 3]) -> f64 {
+    const SUN: [f64; 3] = [0.3996, 0.7992, -0.4496]; // normalised (0.4, 0.8, -0.45)
+    0.45 + 0.55 * dot(n, SUN).max(0.0)
+}
+
+/// Lights, hazes and quantises an albedo into a sample.
+#[inline]
+fn finish(albedo: [f64; 3], normal: [f64; 3], dist: f64, z: f64, t: f64) -> Sample {
+    let lit = scale3(albedo, light(normal));
+    let haze = 1.0 - (-dist / HAZE_DISTANCE).exp();
+    let c = lerp3(lit, SKY_HORIZON, haze);
+    Sample {
+        rgb: [quantise(c[0]), quantise(c[1]), quantise(c[2])],
+        depth: z as f32,
+        t,
+    }
+}
+
+#[inline]
+fn quantise(v: f64) -> u8 {
+    // `as` saturates and maps NaN to 0.
+    (v + 0.5).clamp(0.0, 255.0) as u8
+}
+
+/// Brightness factor `1 + contrast * k * (n - 0.5)` from band-limited noise, never negative.
+#[inline]
+fn grain(seed: u64, s: f64, h: f64, cell: f64, contrast: f64, fp: f64) -> f64 {
+    (1.0 + 4.0 * contrast * (fbm(seed, s, h, cell, 4, 0.6, fp) - 0.5)).max(0.0)
+}
+
+impl Material {
+    /// Albedo (0..255 scale) of a hit, band-limited for footprint `fp` (metres).
+    pub(crate) fn albedo(&self, hit: &Hit, fp: f64) -> [f64; 3] {
+        let base = rgb(self.colour);
+        let (s, h, seed) = (hit.s, hit.h, self.seed);
+        match self.pattern {
+            Pattern::Noise { cell, contrast } => {
+                scale3(base, grain(seed, s, h, cell, contrast, fp))
+            }
+            Pattern::Clothes => clothes(base, hit, seed, fp),
+            Pattern::Car => car(base, hit, seed, fp),
+            Pattern::Bricks => bricks(base, s, h, seed, fp),
+            Pattern::Facade => facade(base, s, h, seed, fp),
+        }
+    }
+}
+
+/// Blends layers painted over each other: `weights[k]` is the (box-filtered) coverage of layer
+/// `k` over everything below it. Only layers that show are evaluated: the topmost fully opaque
+/// one hides all below, which is the common case away from region borders and keeps shading to
+/// about one texture evaluation per pixel.
+#[inline]
+fn layered<const N: usize>(weights: [f64; N], layer: impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
+    let first = (0..N).rev().find(|&k| weights[k] >= 1.0).unwrap_or(0);
+    let mut c = layer(first);
+    for (k, &w) in weights.iter().enumerate().skip(first + 1) {
+        if w > 0.0 {
+            c = lerp3(c, layer(k), w);
+        }
+    }
+    c
+}
+
+fn clothes(shirt: [f64; 3], hit: &Hit, seed: u64, fp: f64) -> [f64; 3] {
+    const SKIN: [f64; 3] = [215.0, 170.0, 140.0];
+    const HAIR: [f64; 3] = [45.0, 32.0, 25.0];
+    let (s, h) = (hit.s, hit.h);
+    let hair = || scale3(HAIR, grain(seed ^ 3, s, h, 0.05, 0.3, fp));
+    if hit.face == Face::Cap {
+        return hair();
+    }
+    let above = |lo: f64| band_coverage(h, fp, lo, f64::INFINITY);
+    let region = |k: usize| match k {
+        0 => scale3([28.0, 24.0, 22.0], grain(seed, s, h, 0.04, 0.3, fp)),
+        1 => {
+            let jeans = scale3([50.0, 65.0, 110.0], grain(seed ^ 1, s, h, 0.15, 0.45, fp));
+            // Dark seam between the legs, facing the vehicle.
+            let seam = band_coverage(s, fp, -0.015, 0.015) * band_coverage(h, fp, 0.0, 0.80);
+            lerp3(jeans, [20.0, 25.0, 45.0], seam)
+        }
+        2 => {
+            let buckle = band_coverage(s, fp, -0.035, 0.035);
+            lerp3([30.0, 25.0, 20.0], [210.0, 195.0, 120.0], buckle)
+        }
+        3 => {
+            // Plaid: light stripes across, dark stripes up, so both image directions carry
+            // texture (horizontal stripes alone would leave horizontal disparity ambiguous).
+            let light_stripe = periodic_coverage(s, fp, 0.09, 0.0, 0.03);
+            let dark_stripe = periodic_coverage(h, fp, 0.09, 0.0, 0.03);
+            let mut plaid = lerp3(shirt, [235.0, 232.0, 220.0], light_stripe);
+            plaid = lerp3(plaid, [25.0, 30.0, 60.0], 0.85 * dark_stripe);
+            scale3(plaid, grain(seed ^ 2, s, h, 0.1, 0.15, fp))
+        }
+        4 => scale3(SKIN, 0.9),
+        _ => {
+            // Head: face towards the vehicle (|s| < 0.2 m of arc), hair behind and on top.
+            let face = || {
+                let eyes = (band_coverage(s, fp, -0.07, -0.035)
+                    + band_coverage(s, fp, 0.035, 0.07))
+                    * band_coverage(h, fp, 1.60, 1.62);
+                let mouth = band_coverage(s, fp, -0.03, 0.03) * band_coverage(h, fp, 1.55, 1.56);
+                let f = lerp3(SKIN, [40.0, 30.0, 30.0], (eyes + mouth).min(1.0));
+                lerp3(f, HAIR, band_coverage(h, fp, 1.68, f64::INFINITY))
+            };
+            let facing = band_coverage(s, fp, -0.2, 0.2);
+            layered([1.0, facing], |k| if k == 0 { hair() } else { face() })
+        }
+    };
+    // Shoes, jeans, belt, shirt, neck, head from the feet up, each starting at a height.
+    let weights = [
+        1.0,
+        above(0.09),
+        above(0.88),
+        above(0.92),
+        above(1.45),
+        above(1.52),
+    ];
+    layered(weights, region)
+}
+
+fn car(paint: [f64; 3], hit: &Hit, seed: u64, fp: f64) -> [f64; 3] {
+    let (s, h) = (hit.s, hit.h);
+    let body = || {
+        // Paint mottled by dirt, darker towards the bottom; one noise evaluation does both.
+        let n = fbm(seed, s, h, 0.3, 4, 0.6, fp);
+        let dirt = (n - 0.5).max(0.0) * (1.6 - h).clamp(0.3, 1.0);
+        scale3(paint, (1.0 + 1.0 * (n - 0.5)) * (1.0 - 1.5 * dirt))
+    };
+    let glass = || scale3([40.0, 45.0, 58.0], grain(seed ^ 6, s, h, 0.4, 0.5, fp));
+    let dark = || scale3([28.0, 28.0, 30.0], grain(seed ^ 7, s, h, 0.08, 0.3, fp));
+    let in_s = |lo: f64, hi: f64| band_coverage(s, fp, lo, hi);
+    let in_h = |lo: f64, hi: f64| band_coverage(h, fp, lo, hi);
+    match hit.face {
+        Face::NegZ | Face::PosZ => {
+            let weights = [
+                1.0,                                                        // underbody
+                in_h(0.25, f64::INFINITY),                                  // body
+                in_h(0.28, 0.46),                                           // bumper
+                in_s(-0.26, 0.26) * in_h(0.50, 0.62),                       // number plate
+                (in_s(-0.85, -0.55) + in_s(0.55, 0.85)) * in_h(0.75, 0.92), // tail lights
+                in_s(-0.72, 0.72) * in_h(0.98, 1.38),                       // rear window
+            ];
+            layered(weights, |k| match k {
+                0 => dark(),
+                1 => body(),
+                2 => [60.0, 60.0, 62.0],
+                3 => {
+                    // Pseudo-random glyphs: strong, fine, unambiguous texture.
+                    let glyph = plate_glyph(seed, s, h, fp);
+                    lerp3([228.0, 228.0, 220.0], [20.0, 20.0, 25.0], glyph)
+                }
+                4 => [195.0, 25.0, 22.0],
+                _ => glass(),
+            })
+        }
+        Face::NegX | Face::PosX => {
+            // Wheels: dark discs with lighter hubs, 0.33 m radius, axles 1.35 m from the middle.
+            let r = ((s.abs() - 1.35).powi(2) + (h - 0.33).powi(2)).sqrt();
+            let weights = [
+                1.0,
+                in_s(-1.5, 1.3) * in_h(0.98, 1.38),
+                band_coverage(r, fp, 0.0, 0.33),
+                band_coverage(r, fp, 0.0, 0.17),
+            ];
+            layered(weights, |k| match k {
+                0 => body(),
+                1 => glass(),
+                2 => dark(),
+                _ => [150.0, 150.0, 155.0],
+            })
+        }
+        _ => body(),
+    }
+}
+
+/// Ink coverage of the number plate at (s, h): 7 glyphs of 3x5 cells, each bit from a hash.
+fn plate_glyph(seed: u64, s: f64, h: f64, fp: f64) -> f64 {
+    const CELL: f64 = 0.016;
+    // Coarser than a cell: the glyphs blur into grey.
+    if fp > CELL {
+        return 0.4 * (CELL / fp).min(1.0);
+    }
+    let (gx, gy) = ((s + 0.24) / CELL, (h - 0.52) / CELL);
+    if !(0.0..28.0).contains(&gx) || !(0.0..5.0).contains(&gy) {
+        return 0.0;
+    }
+    let char_index = floor(gx / 4.0).0;
+    let col = floor(gx).0 - 4 * char_index;
+    if col >= 3 {
+        return 0.0; // gap between glyphs
+    }
+    let bit = lattice(seed ^ 0x91A7E, char_index * 3 + col, floor(gy).0);
+    if bit < 0.5 { 1.0 } else { 0.0 }
+}
+
+fn bricks(brick: [f64; 3], s: f64, h: f64, seed: u64, fp: f64) -> [f64; 3] {
+    const COURSE: f64 = 0.075;
+    const LENGTH: f64 = 0.225;
+    const MORTAR: f64 = 0.012;
+    let row = floor(h / COURSE).0;
+    let offset = if row.rem_euclid(2) == 1 {
+        0.5 * LENGTH
+    } else {
+        0.0
+    };
+    let col = floor((s + offset) / LENGTH).0;
+    // Per-brick tone, faded out once bricks shrink below a pixel.
+    let w = (COURSE / fp - 1.0).clamp(0.0, 1.0);
+    let tone = 1.0 + w * 0.5 * (lattice(seed, col, row) - 0.5);
+    let b = scale3(brick, tone * grain(seed ^ 1, s, h, 0.1, 0.15, fp));
+    let mortar_h = periodic_coverage(h, fp, COURSE, 0.0, MORTAR);
+    let mortar_v = periodic_coverage(s + offset, fp, LENGTH, 0.0, MORTAR);
+    let mortar = 1.0 - (1.0 - mortar_h) * (1.0 - mortar_v);
+    lerp3(b, [185.0, 180.0, 170.0], mortar)
+}
+
+fn facade(plaster: [f64; 3], s: f64, h: f64, seed: u64, fp: f64) -> [f64; 3] {
+    let wall = scale3(plaster, grain(seed, s, h, 0.8, 0.2, fp));
+    let glass = scale3([50.0, 62.0, 82.0], grain(seed ^ 1, s, h, 0.6, 0.5, fp));
+    let window = periodic_coverage(s, fp, 2.6, 0.0, 1.4) * periodic_coverage(h, fp, 3.2, 1.0, 1.4);
+    // Window frames: a lighter band just around each window.
+    let frame =
+        periodic_coverage(s, fp, 2.6, -0.08, 1.56) * periodic_coverage(h, fp, 3.2, 0.92, 1.56);
+    let c = lerp3(wall, [225.0, 225.0, 220.0], frame);
+    lerp3(c, glass, window)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Road, roadside and sky.
+
+/// Road-surface albedo at (x, z): asphalt, dashed lane marks at x = +-1.75 (3 m every 9 m,
+/// starting at z = 0), solid edge lines, kerb at |x| in [5, 5.25], grass beyond.
+fn road_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
+    let ax = x.abs();
+    // Fine-grained (persistence 0.8: the 2.5 cm octave still counts) so that the near road has
+    // the moderate texture real asphalt has, fading to smooth grey with distance.
+    let n = fbm(SEED_ASPHALT, x, z, 0.8, 6, 0.8, along);
+    let v = 105.0 + 190.0 * (n - 0.5);
+    let asphalt = [v, v, v * 1.03];
+    let kerb = scale3(
+        [170.0, 166.0, 158.0],
+        grain(SEED_KERB, x, z, 0.3, 0.2, along),
+    );
+    let g = fbm(SEED_GRASS, x, z, 0.6, 5, 0.7, along);
+    let grass = [
+        70.0 * (0.6 + 0.8 * g),
+        108.0 * (0.5 + 1.0 * g),
+        45.0 * (0.6 + 0.8 * g),
+    ];
+    let paint = scale3(
+        [228.0, 228.0, 222.0],
+        0.92 + 0.16 * value_noise(SEED_PAINT, x * 5.0, z * 5.0),
+    );
+    let mut c = asphalt;
+    let dash = band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06)
+        * periodic_coverage(z, along, 9.0, 0.0, 3.0);
+    let edge = band_coverage(ax, across, 4.75, 4.9);
+    c = lerp3(c, paint, (dash + edge).min(1.0));
+    c = lerp3(
+        c,
+        kerb,
+        band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH),
+    );
+    lerp3(
+        c,
+        grass,
+        band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY),
+    )
+}
+
+/// Sky colour for a direction: a smooth gradient from a pale horizon to a blue zenith with a
+/// faint, very low-frequency cloud tint (the sky must be nearly textureless, as real ones are).
+fn sky(dir: [f64; 3]) -> [f64; 3] {
+    let e = dir[1].clamp(0.0, 1.0);
+    let c = lerp3(SKY_HORIZON, SKY_ZENITH, e.sqrt());
+    let az = dir[0].atan2(dir[2]);
+    let cloud = value_noise(SEED_SKY, az * 4.0, e * 12.0) - 0.5;
+    scale3(c, 1.0 + 0.04 * cloud)
+}
+
+/// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel.
+pub(crate) fn ground_or_sky(ray: &Ray) -> Sample {
+    let (o, d) = (ray.origin, ray.dir);
+    if d[1] < 0.0 && o[1] > 0.0 {
+        let t = -o[1] / d[1];
+        let p = ray.at(t);
+        let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0]);
+        let albedo = road_albedo(p[0], p[2], across, along);
+        return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
+    }
+    let c = sky(d);
+    Sample {
+        rgb: [quantise(c[0]), quantise(c[1]), quantise(c[2])],
+        depth: f32::INFINITY,
+        t: f64::INFINITY,
+    }
+}
+
+/// Colour, depth and distance seen along a ray: road or sky, then the nearest of `props` and
+/// `obstacles` in that order (ties go to the earlier one). The reference every renderer must
+/// reproduce exactly.
+pub(crate) fn trace(ray: &Ray, props: &[Obstacle], obstacles: &[Obstacle]) -> Sample {
+    let mut best = ground_or_sky(ray);
+    let mut best_hit: Option<(&Obstacle, Hit)> = None;
+    for o in props.iter().chain(obstacles) {
+        if let Some(hit) = o.intersect(ray) {
+            if hit.t < best.t {
+                best.t = hit.t;
+                best_hit = Some((o, hit));
+            }
+        }
+    }
+    match best_hit {
+        Some((o, hit)) => o.shade(ray, &hit),
+        None => best,
+    }
+}
+
+/// The static roadside every scene shares (vehicle frame, deterministic): brick walls on the
+/// left at x in [-7.2, -7.0], lamp poles on both sides at |x| = 6.2, trees (trunk and canopy)
+/// on the right at x = 7.5 and a building facade at x = 11. Gives flies textured surfaces to land
+/// on in an empty road, as the roadsides in the paper's figure 4 do.
+pub fn roadside() -> Vec<Obstacle> {
+    let mut v = Vec::new();
+    let pole = |x: f64, z: f64, seed: u64| Obstacle::Cylinder {
+        x,
+        z,
+        radius: 0.09,
+        height: 4.5,
+        material: Material {
+            colour: [125, 125, 130],
+            pattern: Pattern::Noise {
+                cell: 0.15,
+                contrast: 0.35,
+            },
+            seed,
+        },
+    };
+    // Brick wall segments with gaps (gateways), each in a slightly different brick colour.
+    for k in 0..11u64 {
+        let z0 = 6.0 + 8.5 * k as f64;
+        let tint = (k % 3) as u8 * 12;
+        v.push(Obstacle::Box {
+            min: [-7.2, 0.0, z0],
+            max: [-7.0, 2.2, z0 + 7.0],
+            material: Material {
+                colour: [150 + tint, 78 + tint / 2, 58],
+                pattern: Pattern::Bricks,
+                seed: 0xB1C0 + k,
+            },
+        });
+    }
+    for k in 0..7u64 {
+        v.push(pole(-6.2, 10.0 + 15.0 * k as f64, 0x9011 + k));
+        v.push(pole(6.2, 4.0 + 15.0 * k as f64, 0x9022 + k));
+    }
+    for k in 0..8u64 {
+        let z = 8.0 + 12.0 * k as f64;
+        v.push(Obstacle::Cylinder {
+            x: 7.5,
+            z,
+            radius: 0.22,
+            height: 2.6,
+            material: Material {
+                colour: [95, 75, 55],
+                pattern: Pattern::Noise {
+                    cell: 0.12,
+                    contrast: 0.5,
+                },
+                seed: 0x7EE0 + k,
+            },
+        });
+        v.push(Obstacle::Box {
+            min: [6.3, 2.4, z - 1.3],
+            max: [8.7, 4.8, z + 1.3],
+            material: Material {
+                colour: [55, 105, 45],
+                pattern: Pattern::Noise {
+                    cell: 0.35,
+                    contrast: 0.7,
+                },
+                seed: 0xF01 + k,
+            },
+        });
+    }
+    v.push(Obstacle::Box {
+        min: [11.0, 0.0, 4.0],
+        max: [11.5, 9.5, 130.0],
+        material: Material {
+            colour: [195, 182, 160],
+            pattern: Pattern::Facade,
+            seed: 0xFACADE,
+        },
+    });
+    v
+}
+
+/// The dynamic part of the world at one instant; the road, sky and [`roadside`] are implied.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Scene {
+    pub obstacles: Vec<Obstacle>,
+}
+
+impl Scene {
+    pub fn empty() -> Self {
+        Self::default()
+    }
+
+    pub fn with(obstacles: Vec<Obstacle>) -> Self {
+        Self { obstacles }
+    }
+
+    /// Whether any valid obstacle's footprint overlaps the vehicle's lane (|x| < 1.75 m) ahead
+    /// of it (0 < z < [`IN_LANE_MAX_RANGE`]).
+    pub fn obstacle_in_lane(&self) -> bool {
+        self.obstacles.iter().any(|o| {
+            let (x0, x1, z0, z1) = o.footprint();
+            o.is_valid()
+                && x0 < LANE_HALF_WIDTH
+                && x1 > -LANE_HALF_WIDTH
+                && z1 > 0.0
+                && z0 < IN_LANE_MAX_RANGE
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ray(o: [f64; 3], d: [f64; 3]) -> Ray {
+        let n = norm(d);
+        Ray {
+            origin: o,
+            dir: [d[0] / n, d[1] / n, d[2] / n],
+        }
+    }
+
+    #[test]
+    fn box_hit_faces_and_coordinates() {
+        let car = Obstacle::car(0.0, 10.0);
+        let hit = car
+            .intersect(&ray([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+            .expect("hits the rear");
+        assert!((hit.t - 10.0).abs() < 1e-12);
+        assert_eq!(hit.face, Face::NegZ);
+        assert_eq!(hit.normal, [0.0, 0.0, -1.0]);
+        assert!(hit.s.abs() < 1e-12 && (hit.h - 1.0).abs() < 1e-12);
+        // Missing to the side, and starting inside, see nothing.
+        assert!(
+            car.intersect(&ray([3.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+                .is_none()
+        );
+        assert!(
+            car.intersect(&ray([0.0, 1.0, 12.0], [0.0, 0.0, 1.0]))
+                .is_none()
+        );
+    }
+
+    #[test]
+    fn cylinder_hit_front_and_cap() {
+        let p = Obstacle::pedestrian(0.0, 4.0);
+        let hit = p
+            .intersect(&ray([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+            .expect("hits");
+        assert!((hit.t - 3.75).abs() < 1e-12);
+        assert_eq!(hit.face, Face::Round);
+        assert!(hit.s.abs() < 1e-12);
+        let top = p
+            .intersect(&ray([0.0, 3.0, 0.0], [0.0, -1.25, 4.0]))
+            .expect("hits the top");
+        assert_eq!(top.face, Face::Cap);
+        assert!((top.point[1] - 1.75).abs() < 1e-12);
+    }
+
+    #[test]
+    fn invalid_obstacles_are_never_hit() {
+        let bad = [
+            Obstacle::Cylinder {
+                x: 0.0,
+                z: 4.0,
+                radius: -1.0,
+                height: 1.0,
+                material: *Obstacle::pedestrian(0.0, 0.0).material(),
+            },
+            Obstacle::Box {
+                min: [0.0, 0.0, f64::NAN],
+                max: [1.0, 1.0, 5.0],
+                material: *Obstacle::car(0.0, 0.0).material(),
+            },
+        ];
+        for o in bad {
+            assert!(!o.is_valid());
+            assert!(
+                o.intersect(&ray([0.0, 0.5, 0.0], [0.0, 0.0, 1.0]))
+                    .is_none()
+            );
+            assert!(o.bounding_sphere().is_none());
+        }
+    }
+
+    #[test]
+    fn lane_occupancy() {
+        assert!(Scene::with(vec![Obstacle::pedestrian(0.0, 4.0)]).obstacle_in_lane());
+        assert!(Scene::with(vec![Obstacle::pedestrian(1.9, 4.0)]).obstacle_in_lane());
+        assert!(!Scene::with(vec![Obstacle::pedestrian(2.2, 4.0)]).obstacle_in_lane());
+        assert!(!Scene::with(vec![Obstacle::car(0.0, -10.0)]).obstacle_in_lane());
+        assert!(!Scene::empty().obstacle_in_lane());
+        // The roadside never intrudes into the lane.
+        assert!(!Scene::with(roadside()).obstacle_in_lane());
+    }
+
+    #[test]
+    fn road_has_marks_where_promised() {
+        let fine = 1e-4;
+        let mark = road_albedo(1.75, 1.5, fine, fine);
+        let gap = road_albedo(1.75, 6.0, fine, fine);
+        let grass = road_albedo(-8.0, 10.0, fine, fine);
+        assert!(mark[0] > 180.0, "{mark:?}");
+        assert!(gap[0] < 170.0, "{gap:?}");
+        assert!(grass[1] > grass[0] && grass[1] > grass[2], "{grass:?}");
+    }
+}

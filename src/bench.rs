@@ -1,0 +1,121 @@
+//! `flyd bench`: timing of the engine on a synthetic scene, one thread.
+//!
+//! The scene is hw-mock's `pedestrian-4m` rendered through the mock rig. Two frames with
+//! different sensor noise alternate every `generations_per_frame` generations, so the figures
+//! include the full re-evaluation a new frame costs, in the proportion the daemon sees it
+//! (a pair every 3 generations at 30 fps and ~10 ms a generation). Frames are rendered and
+//! prepared before timing starts: only `Engine::step` is timed.
+
+use crate::engine::{Engine, EngineParams};
+use crate::frame::{PixelFormat, PreparedImage, StereoFrame};
+use crate::mock::MockStereo;
+use crate::replay::Timing;
+use serde::Serialize;
+use std::time::{Duration, Instant};
+
+/// What to time.
+#[derive(Debug, Clone)]
+pub struct GenerationBench {
+    pub flies: usize,
+    pub width: u32,
+    pub height: u32,
+    pub generations: u64,
+    pub generations_per_frame: u64,
+}
+
+/// Timing of generations, microseconds.
+#[derive(Debug, Clone, Serialize)]
+pub struct GenerationReport {
+    pub flies: usize,
+    pub width: u32,
+    pub height: u32,
+    pub generations: u64,
+    pub generations_per_frame: u64,
+    /// Every timed generation.
+    pub all: Timing,
+    /// Generations that re-evaluated the whole population on a new frame.
+    pub new_frame: Timing,
+    /// Generations on an unchanged frame (only offspring evaluated).
+    pub same_frame: Timing,
+    /// Flies evaluated per second over the run.
+    pub flies_per_second: f64,
+}
+
+impl std::fmt::Display for GenerationReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{} flies, {}x{}, {} generations, a new frame every {}",
+            self.flies, self.width, self.height, self.generations, self.generations_per_frame
+        )?;
+        for (name, t) in [
+            ("all", &self.all),
+            ("new frame", &self.new_frame),
+            ("same frame", &self.same_frame),
+        ] {
+            writeln!(
+                f,
+                "  {name:<10} median {:8.1} us  min {:8.1} us  max {:8.1} us  p95 {:8.1} us",
+                t.median_us, t.min_us, t.max_us, t.p95_us
+            )?;
+        }
+        write!(
+            f,
+            "  {:.3e} flies evaluated per second",
+            self.flies_per_second
+        )
+    }
+}
+
+/// Runs the benchmark (renders the scene first; that is not timed).
+pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
+    let scenario = hw_mock::Scenario::by_name("pedestrian-4m")
+        .ok_or_else(|| anyhow::anyhow!("hw-mock has no pedestrian-4m scenario"))?;
+    let mut mock = MockStereo::new(scenario, cfg.width, cfg.height)?;
+    let mut frames = Vec::new();
+    for index in 0..2u32 {
+        let (l, r) = mock.frame(index)?;
+        frames.push(StereoFrame::new(
+            PreparedImage::from_pixels(cfg.width, cfg.height, PixelFormat::Rgb8, l)?,
+            PreparedImage::from_pixels(cfg.width, cfg.height, PixelFormat::Rgb8, r)?,
+            index as u64,
+        ));
+    }
+    let params = EngineParams {
+        flies: cfg.flies,
+        ..EngineParams::default()
+    };
+    let mut engine = Engine::new(mock.rig(), params)?;
+    let k = cfg.generations_per_frame.max(1);
+    let warmup = 50;
+    let (mut all, mut new, mut same) = (Vec::new(), Vec::new(), Vec::new());
+    let mut evaluated = 0usize;
+    let mut total = Duration::ZERO;
+    for g in 0..warmup + cfg.generations {
+        let frame = &frames[((g / k) % 2) as usize];
+        let t = Instant::now();
+        let stats = engine.step(frame)?;
+        let dt = t.elapsed();
+        if g >= warmup {
+            all.push(dt);
+            total += dt;
+            evaluated += stats.evaluated;
+            if stats.new_frame {
+                new.push(dt);
+            } else {
+                same.push(dt);
+            }
+        }
+    }
+    Ok(GenerationReport {
+        flies: cfg.flies,
+        width: cfg.width,
+        height: cfg.height,
+        generations: cfg.generations,
+        generations_per_frame: k,
+        all: Timing::of(&mut all),
+        new_frame: Timing::of(&mut new),
+        same_frame: Timing::of(&mut same),
+        flies_per_second: evaluated as f64 / total.as_secs_f64().max(1e-9),
+    })
+}

@@ -1,0 +1,237 @@
+//! `flyd replay`: run the evolution on recorded or synthetic frames and write what it found.
+//!
+//! Outputs, in the output directory:
+//! - `flies.csv`: one fly a row, `x,y,z,fitness,warning,u_left,v_left,u_right,v_right` (metres,
+//!   pixels; `fitness` is the value selection ranks by, after the region of interest and
+//!   sharing; `warning` is computed from the fitness *before* sharing, see [`crate::engine`];
+//!   flies outside an image have empty projections);
+//! - `overlay.png`: the left image with the best 250 flies as crosses (the paper's figures 5, 7);
+//! - `warnings.png`: each fly a spot as dark as its warning (figures 6, 8);
+//! - `trace.csv`: one row a generation (frame index, global warning, danger, time).
+//!
+//! It prints a JSON summary on stdout ([`Summary`]).
+//!
+//! This is a command at the edge: it reads files and the clock; the engine does neither.
+
+use crate::engine::{Engine, GenerationStats, Population};
+use image::{GrayImage, Luma, Rgb, RgbImage};
+use serde::Serialize;
+use std::io::Write;
+use std::path::Path;
+use std::time::Duration;
+
+/// Number of flies drawn on the overlay, as in the paper's figures.
+pub const OVERLAY_FLIES: usize = 250;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Image {
+        path: String,
+        #[source]
+        source: image::ImageError,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
+    move |source| ReplayError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Per-generation timing figures, microseconds.
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct Timing {
+    pub median_us: f64,
+    pub p95_us: f64,
+    pub min_us: f64,
+    pub max_us: f64,
+}
+
+impl Timing {
+    /// Figures of a set of durations (sorted in place).
+    pub fn of(samples: &mut [Duration]) -> Self {
+        if samples.is_empty() {
+            return Self::default();
+        }
+        samples.sort_unstable();
+        let us = |d: Duration| d.as_secs_f64() * 1e6;
+        let at = |q: f64| us(samples[((samples.len() - 1) as f64 * q).round() as usize]);
+        Self {
+            median_us: at(0.5),
+            p95_us: at(0.95),
+            min_us: us(samples[0]),
+            max_us: us(samples[samples.len() - 1]),
+        }
+    }
+}
+
+/// The JSON summary printed on stdout.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Mean warning of the final population (the paper's global warning).
+    pub global_warning: f64,
+    /// Contrast-independent danger of the final population, m^-3 (see the engine docs).
+    pub danger: f64,
+    pub generations: u64,
+    pub frames: u64,
+    pub flies: usize,
+    pub seed: u64,
+    pub time_per_generation: Timing,
+    pub out_dir: String,
+}
+
+/// One row of `trace.csv`.
+#[derive(Debug, Clone, Copy)]
+pub struct TraceRow {
+    pub frame: u64,
+    pub stats: GenerationStats,
+    pub elapsed: Duration,
+}
+
+/// Writes `flies.csv`.
+pub fn write_flies_csv(pop: &Population, path: &Path) -> Result<(), ReplayError> {
+    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let mut w = std::io::BufWriter::new(file);
+    let write = |w: &mut std::io::BufWriter<std::fs::File>| -> std::io::Result<()> {
+        writeln!(w, "x,y,z,fitness,warning,u_left,v_left,u_right,v_right")?;
+        let px = |v: f32| {
+            if v.is_finite() {
+                format!("{v:.3}")
+            } else {
+                String::new()
+            }
+        };
+        for i in 0..pop.len() {
+            writeln!(
+                w,
+                "{:.5},{:.5},{:.5},{:e},{:e},{},{},{},{}",
+                pop.x[i],
+                pop.y[i],
+                pop.z[i],
+                pop.fitness[i],
+                pop.warning[i],
+                px(pop.u_left[i]),
+                px(pop.v_left[i]),
+                px(pop.u_right[i]),
+                px(pop.v_right[i]),
+            )?;
+        }
+        w.flush()
+    };
+    write(&mut w).map_err(io_err(path))
+}
+
+/// Writes `trace.csv`.
+pub fn write_trace_csv(rows: &[TraceRow], path: &Path) -> Result<(), ReplayError> {
+    let mut out =
+        String::from("generation,frame,new_frame,global_warning,danger,visible,time_us\n");
+    for r in rows {
+        out.push_str(&format!(
+            "{},{},{},{:e},{:e},{},{:.1}\n",
+            r.stats.generation,
+            r.frame,
+            r.stats.new_frame as u8,
+            r.stats.global_warning,
+            r.stats.danger,
+            r.stats.visible,
+            r.elapsed.as_secs_f64() * 1e6
+        ));
+    }
+    std::fs::write(path, out).map_err(io_err(path))
+}
+
+/// The left image with the best `n` flies drawn as crosses.
+pub fn overlay(left: &RgbImage, pop: &Population, n: usize) -> RgbImage {
+    let mut img = left.clone();
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    for i in pop.best(n) {
+        let (u, v) = (pop.u_left[i], pop.v_left[i]);
+        if !(u.is_finite() && v.is_finite()) {
+            continue;
+        }
+        let (cx, cy) = (u.round() as i64, v.round() as i64);
+        for d in -3i64..=3 {
+            for (x, y) in [(cx + d, cy), (cx, cy + d)] {
+                if (0..w).contains(&x) && (0..h).contains(&y) {
+                    img.put_pixel(x as u32, y as u32, Rgb([0, 255, 0]));
+                }
+            }
+        }
+    }
+    img
+}
+
+/// A white image where each fly is a 3x3 spot at its left projection, as dark as its warning
+/// (scaled to the largest warning of the population).
+pub fn warning_map(width: u32, height: u32, pop: &Population) -> GrayImage {
+    let mut img = GrayImage::from_pixel(width, height, Luma([255]));
+    let max = pop.warning.iter().copied().fold(0.0f32, f32::max);
+    if max <= 0.0 {
+        return img;
+    }
+    // Draw the weakest first so strong warnings stay visible where spots overlap.
+    let mut order: Vec<usize> = (0..pop.len()).collect();
+    order.sort_by(|&a, &b| pop.warning[a].total_cmp(&pop.warning[b]));
+    for i in order {
+        let (u, v) = (pop.u_left[i], pop.v_left[i]);
+        if !(u.is_finite() && v.is_finite()) || pop.warning[i] <= 0.0 {
+            continue;
+        }
+        let shade = (255.0 * (1.0 - (pop.warning[i] / max).sqrt())).round() as u8;
+        let (cx, cy) = (u.round() as i64, v.round() as i64);
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let (x, y) = (cx + dx, cy + dy);
+                if (0..width as i64).contains(&x) && (0..height as i64).contains(&y) {
+                    let p = img.get_pixel_mut(x as u32, y as u32);
+                    p.0[0] = p.0[0].min(shade);
+                }
+            }
+        }
+    }
+    img
+}
+
+/// Writes flies.csv, overlay.png, warnings.png and trace.csv into `dir` (created if needed).
+pub fn write_outputs(
+    dir: &Path,
+    engine: &Engine,
+    left: &RgbImage,
+    trace: &[TraceRow],
+) -> Result<(), ReplayError> {
+    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    let pop = engine.population();
+    write_flies_csv(pop, &dir.join("flies.csv"))?;
+    write_trace_csv(trace, &dir.join("trace.csv"))?;
+    let save_err = |path: &Path| {
+        let path = path.display().to_string();
+        move |source| ReplayError::Image { path, source }
+    };
+    let p = dir.join("overlay.png");
+    overlay(left, pop, OVERLAY_FLIES)
+        .save(&p)
+        .map_err(save_err(&p))?;
+    let p = dir.join("warnings.png");
+    warning_map(left.width(), left.height(), pop)
+        .save(&p)
+        .map_err(save_err(&p))?;
+    Ok(())
+}
+
+/// Loads an image file as RGB8.
+pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
+    image::open(path)
+        .map(|i| i.to_rgb8())
+        .map_err(|source| ReplayError::Image {
+            path: path.display().to_string(),
+            source,
+        })
+}
