@@ -11,7 +11,6 @@
 //!
 //! Tests build a [`DaemonConfig`] in code ([`DaemonConfig::with_rig`]) rather than from text.
 
-use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -21,6 +20,7 @@ use thiserror::Error;
 use crate::calib::{self, CalibError};
 use crate::can::CanConfig;
 use crate::can::messages::{Command, FaultBits};
+use crate::capture::CaptureFormat;
 use crate::decision::{DecisionConfig, DecisionConfigError};
 use crate::engine::{Engine, EngineError, EngineParams};
 use crate::geometry::StereoRig;
@@ -82,35 +82,14 @@ pub enum CameraSource {
     Mock { scenario: String },
 }
 
-/// Pixel formats a V4L2 camera may be asked for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-pub enum CapturePixelFormat {
-    #[serde(rename = "YUYV")]
-    Yuyv,
-    #[serde(rename = "MJPG")]
-    Mjpg,
-    #[serde(rename = "GREY")]
-    Grey,
-}
-
-impl fmt::Display for CapturePixelFormat {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Self::Yuyv => "YUYV",
-            Self::Mjpg => "MJPG",
-            Self::Grey => "GREY",
-        })
-    }
-}
-
 #[derive(Debug, Clone, PartialEq)]
 pub struct CamerasConfig {
     pub source: CameraSource,
     pub width: u32,
     pub height: u32,
-    /// Nominal frame rate, frames per second.
+    /// Nominal frame rate, frames per second (a whole number for V4L2 devices).
     pub fps: f64,
-    pub pixel_format: CapturePixelFormat,
+    pub pixel_format: CaptureFormat,
     /// Left and right frames further apart than this (capture timestamps) are not a pair.
     pub timestamp_tolerance: Duration,
     /// A camera with no frame for this many frame periods is stale (fault).
@@ -146,6 +125,10 @@ pub struct EvolutionConfig {
     pub generation_period: Option<Duration>,
     /// A generation longer than this is an overrun (fault EVOLUTION_OVERRUN).
     pub max_generation_time: Duration,
+    /// Generations before the danger is trusted: the initial random population gives chance
+    /// matches a large weight until it has converged on the scene (the paper: 10 to 30).
+    /// Until then the state stays INIT and the command the safe one.
+    pub warmup_generations: u64,
     /// Capacity of the snapshot channel to the control thread.
     pub snapshot_queue: usize,
     /// Consecutive rejected left/right candidates before STEREO_SKEW is raised.
@@ -163,6 +146,7 @@ impl Default for EvolutionConfig {
         Self {
             generation_period: Some(Duration::from_millis(10)),
             max_generation_time: Duration::from_millis(50),
+            warmup_generations: 30,
             snapshot_queue: 64,
             skew_fault_rejects: 3,
             lane_half_width: 1.0,
@@ -263,7 +247,7 @@ impl DaemonConfig {
                 width,
                 height,
                 fps: 30.0,
-                pixel_format: CapturePixelFormat::Yuyv,
+                pixel_format: CaptureFormat::Yuyv,
                 timestamp_tolerance: Duration::from_millis(10),
                 stale_frames: 3,
             },
@@ -332,10 +316,8 @@ impl DaemonConfig {
                     .rig
             }
             CalibrationSource::BuiltinMock => {
-                return Err(invalid(
-                    "the built-in mock rig comes with hw-mock, which this build does not have yet"
-                        .into(),
-                ));
+                crate::mock::mock_rig(self.cameras.width, self.cameras.height)
+                    .map_err(|e| invalid(format!("built-in mock rig: {e}")))?
             }
         };
         for (side, cam) in [("left", &rig.left), ("right", &rig.right)] {
@@ -445,15 +427,15 @@ struct RawCameras {
     height: u32,
     fps: f64,
     #[serde(default = "default_pixel_format")]
-    pixel_format: CapturePixelFormat,
+    pixel_format: CaptureFormat,
     #[serde(default = "default_tolerance_ms")]
     timestamp_tolerance_ms: f64,
     #[serde(default = "default_stale_frames")]
     stale_frames: u32,
 }
 
-fn default_pixel_format() -> CapturePixelFormat {
-    CapturePixelFormat::Yuyv
+fn default_pixel_format() -> CaptureFormat {
+    CaptureFormat::Yuyv
 }
 fn default_tolerance_ms() -> f64 {
     10.0
@@ -514,6 +496,7 @@ struct RawEvolution {
     /// 0 = as fast as possible.
     generation_period_ms: f64,
     max_generation_ms: f64,
+    warmup_generations: u64,
     snapshot_queue: usize,
     skew_fault_rejects: u32,
     lane_half_width: f64,
@@ -527,6 +510,7 @@ impl Default for RawEvolution {
         Self {
             generation_period_ms: d.generation_period.map_or(0.0, |p| p.as_secs_f64() * 1e3),
             max_generation_ms: d.max_generation_time.as_secs_f64() * 1e3,
+            warmup_generations: d.warmup_generations,
             snapshot_queue: d.snapshot_queue,
             skew_fault_rejects: d.skew_fault_rejects,
             lane_half_width: d.lane_half_width,
@@ -795,6 +779,7 @@ impl RawEvolution {
         Ok(EvolutionConfig {
             generation_period,
             max_generation_time,
+            warmup_generations: self.warmup_generations,
             snapshot_queue: self.snapshot_queue,
             skew_fault_rejects: self.skew_fault_rejects,
             lane_half_width: self.lane_half_width,

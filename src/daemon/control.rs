@@ -11,6 +11,11 @@
 //!   snapshot's when none arrived;
 //! - the current fault bits: any fault makes the decider fall back to its safe command.
 //!
+//! Snapshots of a population still warming up (fewer than `warmup_generations`) carry no
+//! trusted danger: the decider gets NaN (its fault path: the safe command, reason
+//! FAULT_FALLBACK) and the state stays INIT. `READY=1` goes to systemd with the first snapshot
+//! (both cameras deliver, a generation ran); RUNNING follows the warm-up.
+//!
 //! The command frame's `GlobalWarning` signal carries that danger (m^-3, the value the
 //! thresholds compare), not the paper's contrast-dependent mean warning.
 //!
@@ -210,22 +215,28 @@ impl<B: CanBus> ControlThread<B> {
         while let Ok(snapshot) = self.inputs.snapshots.try_recv() {
             s.report.snapshots += 1;
             s.gen_times.push(snapshot.generation_time);
+            s.latest = Some(snapshot);
+            s.latest_at = Some(self.clock.now());
+            if !self.notifier.is_ready() {
+                tracing::info!(
+                    generation = snapshot.generation,
+                    "ready: both cameras deliver and the first generation ran"
+                );
+                self.notifier.ready("INIT: warming up");
+            }
+            if snapshot.warming_up {
+                continue;
+            }
             let d = snapshot.danger;
             s.danger_since_command = Some(match s.danger_since_command {
                 Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
                 Some(m) => m.max(d),
                 None => d,
             });
-            s.latest = Some(snapshot);
-            s.latest_at = Some(self.clock.now());
             if !s.report.reached_running {
                 s.report.reached_running = true;
                 self.monitor.set_running();
-                tracing::info!(
-                    generation = snapshot.generation,
-                    "running: both cameras deliver and the first generation ran"
-                );
-                self.notifier.ready("RUNNING");
+                tracing::info!(generation = snapshot.generation, "running: warm-up done");
             }
         }
     }
@@ -286,7 +297,7 @@ impl<B: CanBus> ControlThread<B> {
         let danger = s
             .danger_since_command
             .take()
-            .or_else(|| s.latest.map(|l| l.danger))
+            .or_else(|| s.latest.filter(|l| !l.warming_up).map(|l| l.danger))
             .unwrap_or(f64::NAN);
         let decision = self.decider.update(
             DecisionInput {

@@ -98,6 +98,7 @@ impl EvolutionThread {
                 pairs: pc.paired,
                 pair_rejects: pc.rejected,
                 skew_fault: pc.consecutive_rejects >= u64::from(self.config.skew_fault_rejects),
+                warming_up: stats.generation < self.config.warmup_generations,
                 taken_at: finished,
             };
             match self.snapshots.try_send(snapshot) {

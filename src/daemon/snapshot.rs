@@ -72,6 +72,8 @@ pub struct Snapshot {
     pub pair_rejects: u64,
     /// Too many consecutive rejected candidates (STEREO_SKEW).
     pub skew_fault: bool,
+    /// The population has not run `warmup_generations` yet: its danger is not trusted.
+    pub warming_up: bool,
     /// When the generation finished (daemon clock).
     pub taken_at: Duration,
 }
