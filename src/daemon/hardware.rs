@@ -6,7 +6,9 @@ use std::path::Path;
 
 use super::DaemonError;
 use super::clock::SharedClock;
+use super::mock_camera::mock_cameras;
 use crate::can::bus::{CanBus, CandumpLogBus, RetryPolicy, SocketCanBus, SystemClock};
+use crate::capture::{V4l2Config, V4l2Source};
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
 use crate::source::FrameSource;
 
@@ -41,16 +43,37 @@ pub fn open_bus(target: &CanTarget) -> Result<Box<dyn CanBus>, DaemonError> {
 /// Left and right camera.
 pub type Cameras = (Box<dyn FrameSource>, Box<dyn FrameSource>);
 
-/// The two cameras the configuration names, stamping frames on `clock`.
-pub fn open_cameras(config: &DaemonConfig, _clock: &SharedClock) -> Result<Cameras, DaemonError> {
+/// The two cameras the configuration names. V4L2 devices stamp frames with the kernel's
+/// CLOCK_MONOTONIC buffer time (pair them with [`super::MonotonicClock`]); mock cameras with
+/// `clock`.
+pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Cameras, DaemonError> {
     match &config.cameras.source {
-        CameraSource::Mock { scenario } => Err(DaemonError::Cameras(format!(
-            "mock scenario '{scenario}': hw-mock is not part of this build yet"
-        ))),
-        CameraSource::Devices { left, right } => Err(DaemonError::Cameras(format!(
-            "{} and {}: V4L2 capture is not part of this build yet",
-            left.display(),
-            right.display()
-        ))),
+        CameraSource::Mock { scenario } => {
+            let (w, h) = (config.cameras.width, config.cameras.height);
+            let (left, right, _) = mock_cameras(scenario, w, h, clock)
+                .map_err(|e| DaemonError::Cameras(e.to_string()))?;
+            Ok((Box::new(left), Box::new(right)))
+        }
+        CameraSource::Devices { left, right } => {
+            let c = &config.cameras;
+            let camera =
+                |device: &std::path::PathBuf| -> Result<Box<dyn FrameSource>, DaemonError> {
+                    let v4l2 = V4l2Config {
+                        device: device.clone(),
+                        width: c.width,
+                        height: c.height,
+                        fps: c.fps.round() as u32,
+                        format: c.pixel_format,
+                    };
+                    v4l2.validate()
+                        .map_err(|e| DaemonError::Cameras(format!("{}: {e}", device.display())))?;
+                    // Not opened here: a camera missing at start is a fault the daemon reports
+                    // (CAMERA_ERROR, safe command) while its capture thread retries, not a
+                    // reason to refuse to start.
+                    let output = v4l2.format.natural_output();
+                    Ok(Box::new(V4l2Source::new(v4l2, output)))
+                };
+            Ok((camera(left)?, camera(right)?))
+        }
     }
 }

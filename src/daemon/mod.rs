@@ -35,6 +35,7 @@ pub mod control;
 pub mod evolution;
 pub mod faults;
 pub mod hardware;
+pub mod mock_camera;
 pub mod notify;
 pub mod pairer;
 pub mod ring;
