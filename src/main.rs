@@ -58,6 +58,10 @@ struct BenchArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// Instead: reaction time of the whole threaded daemon on hw-mock (config/demo.toml), from
+    /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
+    #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
+    end_to_end: Option<usize>,
 }
 
 #[derive(Args)]
@@ -242,6 +246,9 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
 }
 
 fn bench_command(args: BenchArgs) -> Result<()> {
+    if let Some(runs) = args.end_to_end {
+        return bench_end_to_end_command(runs, args.json);
+    }
     let report = flyd::bench::generations(&flyd::bench::GenerationBench {
         flies: args.flies,
         width: args.width,
@@ -365,4 +372,28 @@ fn run_daemon(
     shutdown: Shutdown,
 ) -> anyhow::Result<daemon::RunReport> {
     Ok(daemon::run(cameras, bus, clock, config, shutdown)?)
+}
+
+/// `flyd bench --end-to-end [RUNS] [--json]`: the daemon's reaction on hw-mock.
+fn bench_end_to_end_command(runs: usize, json: bool) -> Result<()> {
+    let report = daemon::bench_end_to_end(runs)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1} ms"));
+        println!(
+            "end to end on {} ({}x{}, {} flies), {} runs: reaction median {}, p95 {}; \
+             {} without STOP, {} with a STOP before the obstacle",
+            report.scenario,
+            report.width,
+            report.height,
+            report.flies,
+            report.runs,
+            ms(report.median_ms),
+            ms(report.p95_ms),
+            report.misses,
+            report.false_stops
+        );
+    }
+    Ok(())
 }

@@ -29,6 +29,7 @@
 //! - Nothing on the real-time path returns an error for a runtime fault: faults become fault
 //!   bits and the safe command. [`run`] fails only on start-up errors.
 
+pub mod bench;
 pub mod capture;
 pub mod clock;
 pub mod control;
@@ -49,6 +50,7 @@ use std::time::Duration;
 
 use thiserror::Error;
 
+pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
 pub use clock::{MonotonicClock, SharedClock};
 pub use control::ControlReport;
 pub use hardware::Cameras;
