@@ -621,8 +621,14 @@ impl RawCameras {
     fn resolve(self) -> Result<CamerasConfig, Invalid> {
         let source = match (self.left, self.right, self.mock) {
             (None, None, Some(scenario)) => {
-                if scenario.trim().is_empty() {
-                    return bad("cameras.mock", "must name a scenario");
+                if hw_mock::Scenario::by_name(&scenario).is_none() {
+                    return bad(
+                        "cameras.mock",
+                        format!(
+                            "unknown scenario '{scenario}' (known: {})",
+                            hw_mock::Scenario::names().join(", ")
+                        ),
+                    );
                 }
                 CameraSource::Mock { scenario }
             }
