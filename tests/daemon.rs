@@ -174,7 +174,6 @@ fn stalled_camera_raises_its_fault_with_the_safe_command_and_recovers() {
             .faults_seen
             .contains(FaultBits::LEFT_CAMERA_STALE)
     );
-    assert!(report.left.timeouts > 0);
     assert_consecutive(&counters(&frames, status_counter), "status");
 }
 
