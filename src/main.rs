@@ -382,7 +382,8 @@ fn bench_end_to_end_command(runs: usize, json: bool) -> Result<()> {
     } else {
         let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1} ms"));
         println!(
-            "end to end on {} ({}x{}, {} flies), {} runs: reaction median {}, p95 {}; \
+            "end to end on {} ({}x{}, {} flies), {} runs: reaction median {}, p95 {} \
+             (of which capture-to-STOP-frame pipeline, median {}); \
              {} without STOP, {} with a STOP before the obstacle",
             report.scenario,
             report.width,
@@ -391,6 +392,7 @@ fn bench_end_to_end_command(runs: usize, json: bool) -> Result<()> {
             report.runs,
             ms(report.median_ms),
             ms(report.p95_ms),
+            ms(report.pipeline_median_ms),
             report.misses,
             report.false_stops
         );

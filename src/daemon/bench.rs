@@ -6,6 +6,11 @@
 //! minus that capture timestamp; both on the daemon clock. A run ends at that STOP (or at the
 //! end of the scenario: a miss). STOPs before the obstacle appears are counted as false stops.
 //! Each run uses another engine seed, so the runs are samples, not repeats.
+//!
+//! Each reaction is split at the snapshot the control thread held when it decided the first
+//! STOP: `pipeline_ms` is from the capture of that snapshot's frames to the STOP frame (ring,
+//! pairing, one generation, channel, control period: what the daemon adds), the rest is the
+//! evolution converging on the obstacle over the frames before it.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -34,6 +39,9 @@ pub struct BenchReport {
     pub reactions_ms: Vec<f64>,
     pub median_ms: Option<f64>,
     pub p95_ms: Option<f64>,
+    /// Per run that stopped: capture of the frames behind the STOP decision -> STOP frame.
+    pub pipeline_ms: Vec<f64>,
+    pub pipeline_median_ms: Option<f64>,
     /// Runs without a STOP after the obstacle appeared.
     pub misses: usize,
     /// Runs with a STOP before the obstacle appeared.
@@ -57,6 +65,7 @@ pub fn bench_end_to_end_with(
         ));
     };
     let mut reactions = Vec::with_capacity(runs);
+    let mut pipeline = Vec::with_capacity(runs);
     let (mut misses, mut false_stops) = (0, 0);
     for i in 0..runs {
         let mut config = config.clone();
@@ -67,11 +76,14 @@ pub fn bench_end_to_end_with(
             Some(r) => reactions.push(r.as_secs_f64() * 1e3),
             None => misses += 1,
         }
+        if let Some(p) = outcome.pipeline {
+            pipeline.push(p.as_secs_f64() * 1e3);
+        }
         tracing::info!(run = i, reaction_ms = ?outcome.reaction.map(|r| r.as_secs_f64() * 1e3), "bench run");
     }
-    let mut sorted = reactions.clone();
-    sorted.sort_by(f64::total_cmp);
-    let pct = |q: f64| {
+    let pct = |values: &[f64], q: f64| {
+        let mut sorted = values.to_vec();
+        sorted.sort_by(f64::total_cmp);
         (!sorted.is_empty()).then(|| {
             let rank = (q * sorted.len() as f64).ceil() as usize;
             sorted[rank.clamp(1, sorted.len()) - 1]
@@ -83,9 +95,11 @@ pub fn bench_end_to_end_with(
         width: config.cameras.width,
         height: config.cameras.height,
         flies: config.engine.flies,
-        median_ms: pct(0.5),
-        p95_ms: pct(0.95),
+        median_ms: pct(&reactions, 0.5),
+        p95_ms: pct(&reactions, 0.95),
         reactions_ms: reactions,
+        pipeline_median_ms: pct(&pipeline, 0.5),
+        pipeline_ms: pipeline,
         misses,
         false_stops,
     })
@@ -93,6 +107,7 @@ pub fn bench_end_to_end_with(
 
 struct Outcome {
     reaction: Option<Duration>,
+    pipeline: Option<Duration>,
     false_stop: bool,
 }
 
@@ -159,11 +174,18 @@ fn one_run(config: &DaemonConfig, scenario: &str) -> Result<Outcome, DaemonError
         }
     }
     shutdown.request();
-    daemon.join().map_err(|_| DaemonError::Panicked {
+    let report = daemon.join().map_err(|_| DaemonError::Panicked {
         thread: "flyd-bench-run",
     })??;
+    let c = &report.control;
+    // The control report's first STOP is the one measured unless a false stop came first.
+    let pipeline = match (outcome, c.first_stop_at, c.first_stop_frame_at) {
+        (Some(_), Some(sent), Some(captured)) if !false_stop => Some(sent.saturating_sub(captured)),
+        _ => None,
+    };
     Ok(Outcome {
         reaction: outcome,
+        pipeline,
         false_stop,
     })
 }

@@ -107,6 +107,10 @@ pub struct ControlReport {
     pub faults_seen: FaultBits,
     /// Clock time of the first STOP command that left the control thread.
     pub first_stop_at: Option<Duration>,
+    /// For that STOP, the newest snapshot then: when its generation finished, and the capture
+    /// time of its frames (what splits a reaction into evolution and pipeline latency).
+    pub first_stop_snapshot_at: Option<Duration>,
+    pub first_stop_frame_at: Option<Duration>,
     pub last_command: Option<Command>,
     pub reached_running: bool,
 }
@@ -322,6 +326,8 @@ impl<B: CanBus> ControlThread<B> {
         let r = self.tx.send_command(&decision.command_msg(danger));
         if r.is_ok() && decision.command == Command::Stop && s.report.first_stop_at.is_none() {
             s.report.first_stop_at = Some(self.clock.now());
+            s.report.first_stop_snapshot_at = s.latest.map(|l| l.taken_at);
+            s.report.first_stop_frame_at = s.latest.map(|l| l.capture_time());
         }
         self.sent(s, r, "FLYD_Command");
         s.report.commands_sent += 1;
@@ -397,6 +403,7 @@ impl<B: CanBus> ControlThread<B> {
             snapshots_dropped = i.evolution.snapshots_dropped.load(Ordering::Relaxed),
             global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
             danger = latest.map_or(f64::NAN, |l| l.danger),
+            perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
             obstacle_m = latest.and_then(|l| l.obstacle).map(|o| o.distance),
             decision = %s.command,
             state = %s.state,
