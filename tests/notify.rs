@@ -54,6 +54,12 @@ fn ready_watchdog_only_while_healthy_status_and_stopping() {
         .position(|m| m == "WATCHDOG=1\n")
         .expect("watchdog pinged while healthy");
     assert!(ready < first_ping, "{got:?}");
+    assert!(
+        got[..ready]
+            .iter()
+            .any(|m| m.starts_with("EXTEND_TIMEOUT_USEC=")),
+        "start timeout extended before READY: {got:?}"
+    );
     assert!(got.iter().any(|m| m.starts_with("STATUS=")), "{got:?}");
 
     // A stalled camera stops the pings: once a status frame reports it stale, every ping sent

@@ -172,6 +172,7 @@ impl<B: CanBus> ControlThread<B> {
         };
         self.notifier
             .status("INIT: waiting for both cameras and the first generation");
+        self.notifier.extend_startup(start);
 
         while !(self.shutdown.is_requested() || self.finish.is_requested()) {
             self.drain(&mut s);
@@ -201,6 +202,7 @@ impl<B: CanBus> ControlThread<B> {
             let generation = s.latest.map_or(0, |l| l.generation);
             self.notifier
                 .watchdog(now, generation, fresh && s.report.reached_running);
+            self.notifier.extend_startup(now);
 
             let next = command_slot
                 .next()

@@ -6,6 +6,9 @@
 //!   are fresh ([`WatchdogGate`]): a hung evolution thread or dead cameras stop the pings, and
 //!   systemd restarts the service (`WatchdogSec=`). No thread of its own pings blindly.
 //! - `STATUS=...` on state changes and with each stats event, for `systemctl status`.
+//! - `EXTEND_TIMEOUT_USEC=` every [`EXTEND_EVERY`] while not ready yet (a camera plugged in
+//!   late): the daemon is alive and already sending FAULT status on CAN, so systemd's start
+//!   timeout should not kill it.
 //! - `STOPPING=1` at shutdown.
 //!
 //! Without `NOTIFY_SOCKET` (not under systemd, tests) every call is a no-op. A failing socket is
@@ -14,6 +17,11 @@
 use std::time::Duration;
 
 use sd_notify::NotifyState;
+
+/// While not ready, the start timeout is extended this often...
+pub const EXTEND_EVERY: Duration = Duration::from_secs(5);
+/// ...by this much.
+pub const EXTEND_BY: Duration = Duration::from_secs(15);
 
 /// Decides when the watchdog may be pinged (pure).
 #[derive(Debug, Clone, Copy)]
@@ -53,6 +61,7 @@ pub struct ServiceNotifier {
     watchdog: Option<WatchdogGate>,
     ready_sent: bool,
     failed_once: bool,
+    last_extend: Option<Duration>,
 }
 
 impl ServiceNotifier {
@@ -62,6 +71,7 @@ impl ServiceNotifier {
             watchdog: sd_notify::watchdog_enabled().map(|d| WatchdogGate::new(d / 2)),
             ready_sent: false,
             failed_once: false,
+            last_extend: None,
         }
     }
 
@@ -100,6 +110,18 @@ impl ServiceNotifier {
             .is_some_and(|gate| gate.should_ping(now, generation, fresh));
         if ping {
             self.send(&[NotifyState::Watchdog]);
+        }
+    }
+
+    /// Before READY: asks systemd for more start time, every [`EXTEND_EVERY`].
+    pub fn extend_startup(&mut self, now: Duration) {
+        let due = self
+            .last_extend
+            .is_none_or(|t| now.saturating_sub(t) >= EXTEND_EVERY);
+        if !self.ready_sent && due {
+            self.last_extend = Some(now);
+            let usec = u32::try_from(EXTEND_BY.as_micros()).unwrap_or(u32::MAX);
+            self.send(&[NotifyState::ExtendTimeoutUsec(usec)]);
         }
     }
 
