@@ -133,6 +133,19 @@ impl Population {
         self.cell[to] = self.cell[from];
     }
 
+    /// Projects flies `from..` into both images (NaN where a fly is outside one).
+    fn project(&mut self, left: &Projector, right: &Projector, from: usize) {
+        let (x, y, z) = (&self.x[from..], &self.y[from..], &self.z[from..]);
+        left.project_batch(x, y, z, &mut self.u_left[from..], &mut self.v_left[from..]);
+        right.project_batch(
+            x,
+            y,
+            z,
+            &mut self.u_right[from..],
+            &mut self.v_right[from..],
+        );
+    }
+
     /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).
     pub fn best(&self, k: usize) -> Vec<usize> {
         let mut idx: Vec<usize> = (0..self.len()).collect();
@@ -376,7 +389,9 @@ impl Engine {
             self.pop.move_fly(dst, src);
             src += 1;
         }
-        self.mates.index(&self.pop.cell[..keep]);
+        if self.params.local_mating > 0.0 {
+            self.mates.index(&self.pop.cell[..keep]);
+        }
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
         let local = (self.params.local_mating * 4_294_967_296.0).min(u32::MAX as f64) as u32;
@@ -424,21 +439,7 @@ impl Engine {
             self.pop.y[i] = p[1];
             self.pop.z[i] = p[2];
         }
-        let pop = &mut self.pop;
-        self.left.project_batch(
-            &pop.x[from..],
-            &pop.y[from..],
-            &pop.z[from..],
-            &mut pop.u_left[from..],
-            &mut pop.v_left[from..],
-        );
-        self.right.project_batch(
-            &pop.x[from..],
-            &pop.y[from..],
-            &pop.z[from..],
-            &mut pop.u_right[from..],
-            &mut pop.v_right[from..],
-        );
+        self.pop.project(&self.left, &self.right, from);
         for i in from..self.pop.len() {
             let p = [self.pop.x[i], self.pop.y[i], self.pop.z[i]];
             if self.pop.u_left[i].is_nan()

@@ -53,6 +53,9 @@ pub struct EngineParams {
     pub mutation_sigma: f64,
     /// Radius of the square neighbourhood N compared by the fitness (1..=3: 3x3 to 7x7 pixels).
     pub neighbourhood_radius: u32,
+    /// Compare every `row_step`-th row of the neighbourhood (1 = all of it; 3 with radius 3 =
+    /// rows -3, 0, +3). Rows matter less than columns: disparity is along the rows.
+    pub neighbourhood_row_step: u32,
     /// Added to the fitness denominator per compared sample (pixels x channels): guards against
     /// division by zero and keeps a perfectly flat match from dominating. Grey levels squared.
     pub ssd_floor: f64,
@@ -84,6 +87,7 @@ impl Default for EngineParams {
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
             neighbourhood_radius: 3,
+            neighbourhood_row_step: 3,
             ssd_floor: 1.0,
             sharing_cell_px: 8,
             sharing_exponent: 1.0,
@@ -150,6 +154,17 @@ impl EngineParams {
             return err(
                 "neighbourhood_radius",
                 format!("must be 1, 2 or 3, got {}", self.neighbourhood_radius),
+            );
+        }
+        if !(1..=2 * self.neighbourhood_radius + 1).contains(&self.neighbourhood_row_step) {
+            return err(
+                "neighbourhood_row_step",
+                format!(
+                    "must be within 1..={} for radius {}, got {}",
+                    2 * self.neighbourhood_radius + 1,
+                    self.neighbourhood_radius,
+                    self.neighbourhood_row_step
+                ),
             );
         }
         if !(self.ssd_floor.is_finite() && self.ssd_floor > 0.0) {

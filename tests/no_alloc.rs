@@ -1,0 +1,70 @@
+//! "No allocation per generation": a counting allocator watches `Engine::step`.
+
+use flyd::engine::{Engine, EngineParams};
+use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd::mock::MockStereo;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+struct Counting;
+
+static COUNTING: AtomicBool = AtomicBool::new(false);
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator; only counts calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if COUNTING.load(Ordering::Relaxed) {
+            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn generations_do_not_allocate() {
+    let scenario = hw_mock::Scenario::by_name("pedestrian-steps-in").expect("scenario");
+    let mut mock = MockStereo::new(scenario, 320, 240).expect("mock");
+    let mut frames = Vec::new();
+    // Frames 29 and 30: the pedestrian appears, so the change map and guided immigration work.
+    for i in [29u32, 30] {
+        let (l, r) = mock.frame(i).expect("render");
+        frames.push(StereoFrame::new(
+            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, l).expect("left"),
+            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, r).expect("right"),
+            i as u64,
+        ));
+    }
+    let params = EngineParams {
+        flies: 2000,
+        local_mating: 0.5,
+        ..EngineParams::default()
+    };
+    let mut engine = Engine::new(mock.rig(), params).expect("engine");
+    engine.step(&frames[0]).expect("first generation");
+    COUNTING.store(true, Ordering::SeqCst);
+    for g in 0..30 {
+        engine.step(&frames[(g / 3) % 2]).expect("step");
+    }
+    COUNTING.store(false, Ordering::SeqCst);
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::SeqCst),
+        0,
+        "Engine::step allocated"
+    );
+}

@@ -1,0 +1,91 @@
+#!/usr/bin/env bash
+# Boots one scenario in QEMU (TCG) and leaves its results on the host.
+#
+# Usage: tests/vm/run.sh --script FILE --results DIR [--bin PATH]... [--timeout SECS]
+#                        [--kernel FILE --base FILE]
+#
+#   --script   guest scenario (sh), run by the guest's /init with lib.sh's environment
+#   --results  host directory shared with the guest as $RESULTS (9p); console.log lands there
+#   --bin      a binary under test, put on the guest's PATH (/usr/local/bin) under its file
+#              name, with the shared libraries ldd finds for it; also any file a program
+#              needs beside it (a script, a config). Repeatable.
+#   --timeout  hard wall-clock limit for QEMU, default 180 s
+#   --kernel, --base   the KERNEL and BASE that prepare.sh printed; without them run.sh runs
+#              prepare.sh itself (a test driver runs it once for all its boots)
+#
+# Exit status: the scenario's exit code when the VM ran it to the end and powered off;
+# 124 when the timeout killed QEMU; 125 when the VM stopped before the scenario ended (setup
+# failure, kernel panic, QEMU error). Each case is also said on stderr.
+set -euo pipefail
+
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+# shellcheck source=tests/vm/host.sh
+. "$here/host.sh"
+
+script="" results="" timeout=180 KERNEL="" BASE=""
+bins=()
+while [[ $# -gt 0 ]]; do
+    case "$1" in
+        --script) script="$2"; shift 2 ;;
+        --results) results="$2"; shift 2 ;;
+        --bin) bins+=("$2"); shift 2 ;;
+        --timeout) timeout="$2"; shift 2 ;;
+        --kernel) KERNEL="$2"; shift 2 ;;
+        --base) BASE="$2"; shift 2 ;;
+        *) echo "run.sh: unknown argument $1" >&2; exit 2 ;;
+    esac
+done
+[[ -f "$script" && -n "$results" ]] || { sed -n '2,20p' "$0" >&2; exit 2; }
+
+if [[ -z "$KERNEL" || -z "$BASE" ]]; then
+    eval "$("$here/prepare.sh")"
+fi
+
+mkdir -p "$results"
+results="$(cd "$results" && pwd)"
+work="$(mktemp -d "${TMPDIR:-/tmp}/flyd-vm.XXXXXX")"
+trap 'rm -rf "$work"' EXIT
+
+# The per-boot overlay: scenario and binaries under test, uncompressed (they change every
+# build; compressing a large binary costs more than it saves). The kernel unpacks concatenated
+# archives in order; this one goes first, uncompressed, as early-microcode archives do.
+o="$work/overlay"
+mkdir -p "$o/usr/local/bin"
+install -m 0755 "$script" "$o/scenario.sh"
+for b in "${bins[@]}"; do
+    [[ -f "$b" ]] || { echo "run.sh: --bin $b is not a file" >&2; exit 2; }
+    copy_with_libs "$o" "$b" "/usr/local/bin/$(basename "$b")"
+done
+cpio_newc "$o" >"$work/initrd"
+cat "$BASE" >>"$work/initrd"
+
+start=$EPOCHREALTIME
+set +e
+timeout --kill-after=5 "$timeout" qemu-system-x86_64 \
+    -accel tcg -cpu max -m 512 -smp 2 \
+    -nographic -no-reboot -nic none \
+    -kernel "$KERNEL" -initrd "$work/initrd" \
+    -append "console=ttyS0 quiet loglevel=3 panic=-1" \
+    -virtfs "local,path=$results,mount_tag=results,security_model=none,id=results" \
+    </dev/null >"$results/console.log" 2>"$work/qemu.err"
+qemu_status=$?
+set -e
+wall=$(awk -v a="$start" -v b="$EPOCHREALTIME" 'BEGIN { printf "%.1f", b - a }')
+tr -d '\r' <"$results/console.log" >"$work/console" && mv "$work/console" "$results/console.log"
+
+if [[ $qemu_status -eq 124 || $qemu_status -eq 137 ]]; then
+    echo "run.sh: TIMEOUT: QEMU killed after ${timeout} s; console in $results/console.log" >&2
+    exit 124
+fi
+if [[ $qemu_status -ne 0 ]]; then
+    echo "run.sh: QEMU failed (exit $qemu_status): $(cat "$work/qemu.err")" >&2
+    exit 125
+fi
+code="$(sed -n 's/.*@@VM event=exit uptime=[^ ]* code=\([0-9]*\).*/\1/p' "$results/console.log")"
+if [[ -z "$code" ]]; then
+    echo "run.sh: the VM stopped before the scenario ended; console:" >&2
+    tail -n 40 "$results/console.log" >&2
+    exit 125
+fi
+echo "run.sh: scenario exit=$code qemu_wall_s=$wall" >&2
+exit "$code"
