@@ -1,0 +1,139 @@
+//! A capture thread: one camera's [`FrameSource`] into its [`FrameWriter`].
+//!
+//! The loop never waits on anyone but the camera: it prepares each frame straight into the
+//! ring's write slot and publishes it (one atomic swap). A dequeue waits at most
+//! `poll_timeout`, so an unplugged camera is noticed (its frames stop: the control thread's
+//! stale-camera fault) and a stop request is seen. Device errors (disconnect, wrong format) are
+//! logged once per episode, flagged for the CAMERA_ERROR fault, and the device is reopened with
+//! exponential backoff until it delivers again. End of stream (a finished mock scenario) asks
+//! the daemon to end.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use super::clock::SharedClock;
+use super::pairer::Side;
+use super::ring::FrameWriter;
+use super::threads::Shutdown;
+use crate::source::{FrameSource, SourceError};
+
+/// What the control thread reads about a camera (lock-free, `Relaxed`: statistics and
+/// timestamps, nothing is synchronised through them).
+#[derive(Debug)]
+pub struct CameraHealth {
+    /// Arrival time (daemon clock, ns) of the newest frame; `u64::MAX` before the first one.
+    last_frame_ns: AtomicU64,
+    error: AtomicBool,
+    timeouts: AtomicU64,
+    errors: AtomicU64,
+    end_of_stream: AtomicBool,
+}
+
+impl Default for CameraHealth {
+    fn default() -> Self {
+        Self {
+            last_frame_ns: AtomicU64::new(u64::MAX),
+            error: AtomicBool::new(false),
+            timeouts: AtomicU64::new(0),
+            errors: AtomicU64::new(0),
+            end_of_stream: AtomicBool::new(false),
+        }
+    }
+}
+
+impl CameraHealth {
+    pub fn last_frame_at(&self) -> Option<Duration> {
+        match self.last_frame_ns.load(Ordering::Relaxed) {
+            u64::MAX => None,
+            ns => Some(Duration::from_nanos(ns)),
+        }
+    }
+    pub fn has_error(&self) -> bool {
+        self.error.load(Ordering::Relaxed)
+    }
+    pub fn timeouts(&self) -> u64 {
+        self.timeouts.load(Ordering::Relaxed)
+    }
+    pub fn errors(&self) -> u64 {
+        self.errors.load(Ordering::Relaxed)
+    }
+    pub fn end_of_stream(&self) -> bool {
+        self.end_of_stream.load(Ordering::Relaxed)
+    }
+}
+
+pub struct CaptureThread {
+    pub side: Side,
+    pub source: Box<dyn FrameSource>,
+    pub writer: FrameWriter,
+    pub health: Arc<CameraHealth>,
+    pub clock: SharedClock,
+    pub poll_timeout: Duration,
+    /// Threads stop when set.
+    pub stop: Shutdown,
+    /// Set to end the daemon (end of stream).
+    pub finish: Shutdown,
+}
+
+const BACKOFF_MIN: Duration = Duration::from_millis(50);
+const BACKOFF_MAX: Duration = Duration::from_secs(2);
+
+impl CaptureThread {
+    pub fn run(mut self) {
+        let camera = self.source.name().to_string();
+        let side = self.side.name();
+        let mut backoff = BACKOFF_MIN;
+        let mut in_error = false;
+        while !self.stop.is_requested() {
+            let slot = self.writer.slot();
+            match self.source.next_frame(&mut slot.image, self.poll_timeout) {
+                Ok(meta) => {
+                    let now = self.clock.now();
+                    slot.meta = meta;
+                    slot.arrival = now;
+                    self.writer.publish();
+                    let ns = u64::try_from(now.as_nanos()).unwrap_or(u64::MAX - 1);
+                    self.health.last_frame_ns.store(ns, Ordering::Relaxed);
+                    if in_error {
+                        tracing::info!(camera, side, "camera delivers again");
+                        self.health.error.store(false, Ordering::Relaxed);
+                        in_error = false;
+                        backoff = BACKOFF_MIN;
+                    }
+                }
+                Err(SourceError::Timeout(_)) => {
+                    self.health.timeouts.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(e @ SourceError::Corrupt { .. }) => {
+                    self.health.errors.fetch_add(1, Ordering::Relaxed);
+                    tracing::debug!(camera, side, error = %e, "corrupt frame skipped");
+                }
+                Err(SourceError::EndOfStream) => {
+                    tracing::info!(camera, side, "end of stream: ending the run");
+                    self.health.end_of_stream.store(true, Ordering::Relaxed);
+                    self.finish.request();
+                    break;
+                }
+                Err(e) => {
+                    self.health.errors.fetch_add(1, Ordering::Relaxed);
+                    self.health.error.store(true, Ordering::Relaxed);
+                    if !in_error {
+                        tracing::warn!(
+                            camera, side, error = %e,
+                            "camera error: reopening with backoff (logged once until it recovers)"
+                        );
+                        in_error = true;
+                    }
+                    if self.stop.sleep(backoff) {
+                        break;
+                    }
+                    backoff = (backoff * 2).min(BACKOFF_MAX);
+                    if let Err(e) = self.source.reopen() {
+                        tracing::debug!(camera, side, error = %e, "reopen failed");
+                    }
+                }
+            }
+        }
+    }
+}

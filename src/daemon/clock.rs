@@ -1,0 +1,54 @@
+//! The daemon's time: one injected [`Clock`] shared by all threads.
+//!
+//! Frame timestamps ([`crate::source::FrameMeta::timestamp`]) and the daemon clock must share a
+//! timebase, since the control thread compares them (perception age, reaction time). V4L2 stamps
+//! buffers with CLOCK_MONOTONIC, so production uses [`MonotonicClock`]; tests pass a
+//! [`crate::can::bus::ManualClock`] or the monotonic clock, and their sources stamp frames with
+//! the same clock.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+pub use crate::can::bus::Clock;
+
+/// A clock all daemon threads can read.
+pub type SharedClock = Arc<dyn Clock + Sync>;
+
+/// CLOCK_MONOTONIC, the kernel's V4L2 buffer timestamp clock.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MonotonicClock;
+
+impl Clock for MonotonicClock {
+    fn now(&self) -> Duration {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
+        let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+        if rc != 0 {
+            return Duration::ZERO;
+        }
+        Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+    }
+}
+
+impl MonotonicClock {
+    pub fn shared() -> SharedClock {
+        Arc::new(MonotonicClock)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monotonic_clock_moves_forward() {
+        let c = MonotonicClock;
+        let a = c.now();
+        std::thread::sleep(Duration::from_millis(2));
+        let b = c.now();
+        assert!(b > a && a > Duration::ZERO);
+    }
+}

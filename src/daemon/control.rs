@@ -1,0 +1,468 @@
+//! The control thread: snapshots in, CAN frames out, at fixed periods.
+//!
+//! Every turn (at most every 5 ms): drain the snapshot channel, evaluate the faults
+//! ([`FaultMonitor`]) at the clock's time, log fault and state transitions, and send whatever
+//! is due: `FLYD_Command` and `FLYD_Status` every 20 ms, `FLYD_Obstacle` every 100 ms by
+//! default (the [`CanConfig`] periods), whether or not anything changed. The command is decided
+//! when it is due, by the [`Decider`] fed with
+//!
+//! - the **highest danger** among the snapshots received since the previous command (a danger
+//!   spike between two commands is not lost; releases stay conservative), or the newest
+//!   snapshot's when none arrived;
+//! - the current fault bits: any fault makes the decider fall back to its safe command.
+//!
+//! Snapshots of a population still warming up (fewer than `warmup_generations`) carry no
+//! trusted danger: the decider gets NaN (its fault path: the safe command, reason
+//! FAULT_FALLBACK) and the state stays INIT. `READY=1` goes to systemd with the first snapshot
+//! (both cameras deliver, a generation ran); RUNNING follows the warm-up.
+//!
+//! The command frame's `GlobalWarning` signal carries that danger (m^-3, the value the
+//! thresholds compare), not the paper's contrast-dependent mean warning.
+//!
+//! CAN write errors never stop the loop: they are counted, logged once per episode (and once
+//! when writes recover), raise CAN_TX_ERROR, and the next period simply sends again.
+//!
+//! This is the only thread that writes to the bus and talks to systemd ([`ServiceNotifier`]).
+//! At shutdown it sends a last command (reason SHUTDOWN) and a last status (state SHUTDOWN).
+
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use crossbeam_channel::Receiver;
+
+use super::capture::CameraHealth;
+use super::clock::SharedClock;
+use super::evolution::EvolutionCounters;
+use super::faults::{FaultMonitor, Observation};
+use super::notify::ServiceNotifier;
+use super::ring::RingCounters;
+use super::snapshot::{ObstacleEstimate, Snapshot};
+use super::stats::{RateMeter, SampleWindow};
+use super::threads::Shutdown;
+use crate::can::bus::{BusError, CanBus};
+use crate::can::messages::{Command, FaultBits, State, StatusMsg};
+use crate::can::{CanConfig, Transmitter};
+use crate::decision::{Decider, DecisionInput};
+
+/// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
+const MAX_TURN: Duration = Duration::from_millis(5);
+/// Window of the rates in the status frame.
+const RATE_WINDOW: Duration = Duration::from_secs(1);
+
+/// A fixed-rate schedule (pure).
+#[derive(Debug, Clone, Copy)]
+pub struct Periodic {
+    period: Duration,
+    next: Duration,
+}
+
+impl Periodic {
+    /// First due at `start`.
+    pub fn new(period: Duration, start: Duration) -> Self {
+        Self {
+            period: period.max(Duration::from_micros(100)),
+            next: start,
+        }
+    }
+
+    /// Whether the slot is due at `now`; if so, schedules the next one. Late by more than a
+    /// period (a stalled loop), it skips the missed slots rather than sending a burst.
+    pub fn due(&mut self, now: Duration) -> bool {
+        if now < self.next {
+            return false;
+        }
+        self.next += self.period;
+        if self.next <= now {
+            self.next = now + self.period;
+        }
+        true
+    }
+
+    pub fn next(&self) -> Duration {
+        self.next
+    }
+}
+
+/// What the control thread reads from the other threads.
+pub struct Inputs {
+    pub snapshots: Receiver<Snapshot>,
+    pub left: Arc<CameraHealth>,
+    pub right: Arc<CameraHealth>,
+    pub left_ring: Arc<RingCounters>,
+    pub right_ring: Arc<RingCounters>,
+    pub evolution: Arc<EvolutionCounters>,
+}
+
+/// What the control thread did, for [`super::RunReport`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ControlReport {
+    pub commands_sent: u64,
+    pub statuses_sent: u64,
+    pub obstacles_sent: u64,
+    pub can_errors: u64,
+    pub snapshots: u64,
+    pub decision_changes: u64,
+    /// Every fault bit raised at some point.
+    pub faults_seen: FaultBits,
+    /// Clock time of the first STOP command that left the control thread.
+    pub first_stop_at: Option<Duration>,
+    /// For that STOP, the newest snapshot then: when its generation finished, and the capture
+    /// time of its frames (what splits a reaction into evolution and pipeline latency).
+    pub first_stop_snapshot_at: Option<Duration>,
+    pub first_stop_frame_at: Option<Duration>,
+    pub last_command: Option<Command>,
+    pub reached_running: bool,
+}
+
+pub struct ControlThread<B: CanBus> {
+    pub tx: Transmitter<B>,
+    pub decider: Decider,
+    pub monitor: FaultMonitor,
+    pub notifier: ServiceNotifier,
+    pub inputs: Inputs,
+    pub clock: SharedClock,
+    pub can: CanConfig,
+    pub stats_interval: Duration,
+    /// External shutdown request (signal, test, `--duration`).
+    pub shutdown: Shutdown,
+    /// Internal end request (end of stream).
+    pub finish: Shutdown,
+}
+
+/// Mutable state of the loop.
+struct Loop {
+    latest: Option<Snapshot>,
+    latest_at: Option<Duration>,
+    /// Highest danger since the last command (NaN-propagating: a NaN is a fault).
+    danger_since_command: Option<f64>,
+    faults: FaultBits,
+    state: State,
+    command: Command,
+    can_failing: bool,
+    can_episode_errors: u64,
+    gen_times: SampleWindow,
+    gen_rate: RateMeter,
+    left_fps: RateMeter,
+    right_fps: RateMeter,
+    report: ControlReport,
+}
+
+impl<B: CanBus> ControlThread<B> {
+    pub fn run(mut self) -> ControlReport {
+        let start = self.clock.now();
+        let mut command_slot = Periodic::new(self.can.command.period(), start);
+        let mut status_slot = Periodic::new(self.can.status.period(), start);
+        let mut obstacle_slot = Periodic::new(self.can.obstacle.period(), start);
+        let mut stats_slot = Periodic::new(self.stats_interval, start + self.stats_interval);
+        let mut s = Loop {
+            latest: None,
+            latest_at: None,
+            danger_since_command: None,
+            faults: FaultBits::empty(),
+            state: State::Init,
+            command: self.decider.command(),
+            can_failing: false,
+            can_episode_errors: 0,
+            gen_times: SampleWindow::new(1024),
+            gen_rate: RateMeter::default(),
+            left_fps: RateMeter::default(),
+            right_fps: RateMeter::default(),
+            report: ControlReport::default(),
+        };
+        self.notifier
+            .status("INIT: waiting for both cameras and the first generation");
+        self.notifier.extend_startup(start);
+
+        while !(self.shutdown.is_requested() || self.finish.is_requested()) {
+            self.drain(&mut s);
+            let now = self.clock.now();
+            self.update_rates(&mut s, now);
+            self.supervise(&mut s, now);
+            if command_slot.due(now) {
+                self.send_command(&mut s, now);
+            }
+            if status_slot.due(now) {
+                self.send_status(&mut s, now);
+            }
+            if obstacle_slot.due(now) {
+                let msg = ObstacleEstimate::to_msg(s.latest.and_then(|l| l.obstacle));
+                let r = self.tx.send_obstacle(&msg);
+                self.sent(&mut s, r, "FLYD_Obstacle");
+                s.report.obstacles_sent += 1;
+            }
+            if stats_slot.due(now) {
+                self.stats(&mut s);
+            }
+            let fresh = !s.faults.intersects(
+                FaultBits::LEFT_CAMERA_STALE
+                    | FaultBits::RIGHT_CAMERA_STALE
+                    | FaultBits::SNAPSHOT_STALE,
+            );
+            let generation = s.latest.map_or(0, |l| l.generation);
+            self.notifier
+                .watchdog(now, generation, fresh && s.report.reached_running);
+            self.notifier.extend_startup(now);
+
+            let next = command_slot
+                .next()
+                .min(status_slot.next())
+                .min(obstacle_slot.next());
+            let wait = next.saturating_sub(self.clock.now()).min(MAX_TURN);
+            if !wait.is_zero() {
+                std::thread::sleep(wait);
+            }
+        }
+        self.shut_down(&mut s);
+        s.report
+    }
+
+    fn drain(&mut self, s: &mut Loop) {
+        while let Ok(snapshot) = self.inputs.snapshots.try_recv() {
+            s.report.snapshots += 1;
+            s.gen_times.push(snapshot.generation_time);
+            s.latest = Some(snapshot);
+            s.latest_at = Some(self.clock.now());
+            if !self.notifier.is_ready() {
+                tracing::info!(
+                    generation = snapshot.generation,
+                    "ready: both cameras deliver and the first generation ran"
+                );
+                self.notifier.ready("INIT: warming up");
+            }
+            if snapshot.warming_up {
+                continue;
+            }
+            let d = snapshot.danger;
+            s.danger_since_command = Some(match s.danger_since_command {
+                Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
+                Some(m) => m.max(d),
+                None => d,
+            });
+            if !s.report.reached_running {
+                s.report.reached_running = true;
+                self.monitor.set_running();
+                tracing::info!(generation = snapshot.generation, "running: warm-up done");
+            }
+        }
+    }
+
+    fn update_rates(&mut self, s: &mut Loop, now: Duration) {
+        let generation = s.latest.map_or(0, |l| l.generation);
+        s.gen_rate.update(now, generation, RATE_WINDOW);
+        s.left_fps
+            .update(now, self.inputs.left_ring.published(), RATE_WINDOW);
+        s.right_fps
+            .update(now, self.inputs.right_ring.published(), RATE_WINDOW);
+    }
+
+    /// Fault bits and state at `now`, with their transitions logged.
+    fn supervise(&mut self, s: &mut Loop, now: Duration) {
+        let i = &self.inputs;
+        let observation = Observation {
+            now,
+            left_frame_at: i.left.last_frame_at(),
+            right_frame_at: i.right.last_frame_at(),
+            left_error: i.left.has_error(),
+            right_error: i.right.has_error(),
+            snapshot_at: s.latest_at,
+            skew_fault: s.latest.is_some_and(|l| l.skew_fault),
+            overrun: s.latest.is_some_and(|l| l.overrun),
+            can_failing: s.can_failing,
+        };
+        let faults = self.monitor.evaluate(&observation);
+        let raised = faults & !s.faults;
+        let cleared = s.faults & !faults;
+        for name in raised.names() {
+            let age_ms =
+                |at: Option<Duration>| at.map(|t| now.saturating_sub(t).as_millis() as u64);
+            tracing::warn!(
+                fault = name,
+                faults = %faults,
+                left_frame_age_ms = age_ms(observation.left_frame_at),
+                right_frame_age_ms = age_ms(observation.right_frame_at),
+                snapshot_age_ms = age_ms(observation.snapshot_at),
+                "fault raised"
+            );
+        }
+        for name in cleared.names() {
+            tracing::info!(fault = name, faults = %faults, "fault cleared");
+        }
+        s.report.faults_seen |= faults;
+        s.faults = faults;
+        let state = self.monitor.state(faults);
+        if state != s.state {
+            tracing::info!(from = %s.state, to = %state, faults = %faults, "state changed");
+            s.state = state;
+            self.notifier
+                .status(&format!("{state}: faults {faults}, command {}", s.command));
+        }
+    }
+
+    fn send_command(&mut self, s: &mut Loop, now: Duration) {
+        let danger = s
+            .danger_since_command
+            .take()
+            .or_else(|| s.latest.filter(|l| !l.warming_up).map(|l| l.danger))
+            .unwrap_or(f64::NAN);
+        let decision = self.decider.update(
+            DecisionInput {
+                global_warning: danger,
+                faults: s.faults,
+            },
+            now,
+        );
+        if decision.changed {
+            s.report.decision_changes += 1;
+            tracing::info!(
+                from = %decision.previous,
+                to = %decision.command,
+                reason = %decision.reason,
+                danger,
+                faults = %s.faults,
+                obstacle_m = s.latest.and_then(|l| l.obstacle).map(|o| o.distance),
+                "decision changed"
+            );
+        }
+        s.command = decision.command;
+        let r = self.tx.send_command(&decision.command_msg(danger));
+        if r.is_ok() && decision.command == Command::Stop && s.report.first_stop_at.is_none() {
+            s.report.first_stop_at = Some(self.clock.now());
+            s.report.first_stop_snapshot_at = s.latest.map(|l| l.taken_at);
+            s.report.first_stop_frame_at = s.latest.map(|l| l.capture_time());
+        }
+        self.sent(s, r, "FLYD_Command");
+        s.report.commands_sent += 1;
+        s.report.last_command = Some(decision.command);
+    }
+
+    fn status_msg(&self, s: &Loop, now: Duration, state: State) -> StatusMsg {
+        StatusMsg {
+            state,
+            faults: s.faults,
+            perception_age: s
+                .latest
+                .map_or(Duration::MAX, |l| now.saturating_sub(l.capture_time())),
+            generations_per_sec: s.gen_rate.rate(),
+            cam_fps_left: s.left_fps.rate(),
+            cam_fps_right: s.right_fps.rate(),
+        }
+    }
+
+    fn send_status(&mut self, s: &mut Loop, now: Duration) {
+        let msg = self.status_msg(s, now, s.state);
+        let r = self.tx.send_status(&msg);
+        self.sent(s, r, "FLYD_Status");
+        s.report.statuses_sent += 1;
+    }
+
+    /// Counts a send; logs the first failure of an episode and the recovery.
+    fn sent(&mut self, s: &mut Loop, result: Result<(), BusError>, message: &'static str) {
+        match result {
+            Ok(()) => {
+                if s.can_failing {
+                    tracing::info!(errors = s.can_episode_errors, "CAN writes recovered");
+                    s.can_failing = false;
+                    s.can_episode_errors = 0;
+                }
+            }
+            Err(error) => {
+                s.report.can_errors += 1;
+                s.can_episode_errors += 1;
+                if !s.can_failing {
+                    tracing::warn!(
+                        %error,
+                        message,
+                        retryable = error.is_retryable(),
+                        "CAN write failed: sending again every period (logged once until it recovers)"
+                    );
+                    s.can_failing = true;
+                }
+            }
+        }
+    }
+
+    fn stats(&mut self, s: &mut Loop) {
+        let [p50, p99] = s
+            .gen_times
+            .percentiles([0.5, 0.99])
+            .unwrap_or([Duration::ZERO; 2]);
+        let i = &self.inputs;
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let latest = s.latest;
+        tracing::info!(
+            target: "flyd::stats",
+            fps_left = s.left_fps.rate(),
+            fps_right = s.right_fps.rate(),
+            drops_left = i.left_ring.dropped(),
+            drops_right = i.right_ring.dropped(),
+            pair_rejects = i.evolution.pair_rejects.load(Ordering::Relaxed),
+            pairs = i.evolution.pairs.load(Ordering::Relaxed),
+            generations_per_sec = s.gen_rate.rate(),
+            gen_p50_ms = ms(p50),
+            gen_p99_ms = ms(p99),
+            overruns = i.evolution.overruns.load(Ordering::Relaxed),
+            snapshots_dropped = i.evolution.snapshots_dropped.load(Ordering::Relaxed),
+            global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
+            danger = latest.map_or(f64::NAN, |l| l.danger),
+            perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
+            obstacle_m = latest.and_then(|l| l.obstacle).map(|o| o.distance),
+            decision = %s.command,
+            state = %s.state,
+            faults = %s.faults,
+            can_errors = s.report.can_errors,
+            "stats"
+        );
+        let status = format!(
+            "{}: {} | {:.0}/{:.0} fps | {:.0} gen/s | faults {}",
+            s.state,
+            s.command,
+            s.left_fps.rate(),
+            s.right_fps.rate(),
+            s.gen_rate.rate(),
+            s.faults
+        );
+        if self.notifier.is_ready() {
+            self.notifier.status(&status);
+        }
+    }
+
+    fn shut_down(&mut self, s: &mut Loop) {
+        let now = self.clock.now();
+        let decision = self.decider.shutdown();
+        tracing::info!(command = %decision.command, "shutting down: last command and SHUTDOWN status");
+        self.notifier.stopping("SHUTDOWN");
+        let danger = s.latest.map_or(f64::NAN, |l| l.danger);
+        let r = self.tx.send_command(&decision.command_msg(danger));
+        self.sent(s, r, "FLYD_Command");
+        s.report.commands_sent += 1;
+        s.report.last_command = Some(decision.command);
+        let msg = self.status_msg(s, now, State::Shutdown);
+        let r = self.tx.send_status(&msg);
+        self.sent(s, r, "FLYD_Status");
+        s.report.statuses_sent += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    #[test]
+    fn periodic_is_fixed_rate_and_skips_missed_slots() {
+        let mut p = Periodic::new(20 * MS, 100 * MS);
+        assert!(!p.due(99 * MS));
+        assert!(p.due(100 * MS));
+        assert!(!p.due(119 * MS));
+        assert!(
+            p.due(125 * MS),
+            "late but within the period: keeps the phase"
+        );
+        assert_eq!(p.next(), 140 * MS);
+        assert!(p.due(200 * MS), "stalled for several periods");
+        assert!(!p.due(201 * MS), "no burst of missed slots");
+        assert_eq!(p.next(), 220 * MS);
+    }
+}

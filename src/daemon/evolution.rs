@@ -1,0 +1,156 @@
+//! The evolution thread: pairs frames, runs generations, publishes [`Snapshot`]s.
+//!
+//! Each turn: fetch each camera's newest frame from its ring and offer it to the [`Pairer`];
+//! on a pair, swap both images into the engine's [`StereoFrame`] (zero copy) under a new id, so
+//! the engine re-evaluates the whole population; run one generation (on the newest pair, new or
+//! not: the population keeps converging between frames, as in the paper); estimate the nearest
+//! obstacle; `try_send` the snapshot (a full channel drops it and counts it: this thread never
+//! blocks on the control thread). Then wait for the next period (`generation_period`), or go on
+//! at once when it is unset. A turn longer than `max_generation_time` is flagged as an overrun.
+//!
+//! Allocation happens only at start: the engine, the two images of the stereo frame, the
+//! estimator's scratch.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use crossbeam_channel::{Sender, TrySendError};
+
+use super::clock::SharedClock;
+use super::pairer::{PairOutcome, Pairer, Side};
+use super::ring::FrameReader;
+use super::snapshot::{ObstacleEstimator, Snapshot};
+use super::threads::Shutdown;
+use crate::config::EvolutionConfig;
+use crate::engine::{Engine, EngineError};
+use crate::frame::StereoFrame;
+use crate::source::FrameMeta;
+
+/// Counters the control thread reads (statistics, `Relaxed`).
+#[derive(Debug, Default)]
+pub struct EvolutionCounters {
+    pub generations: AtomicU64,
+    pub snapshots_dropped: AtomicU64,
+    pub overruns: AtomicU64,
+    pub pairs: AtomicU64,
+    pub pair_rejects: AtomicU64,
+}
+
+pub struct EvolutionThread {
+    pub engine: Engine,
+    pub left: FrameReader,
+    pub right: FrameReader,
+    pub pairer: Pairer,
+    /// The engine's input; its images are swapped with the rings' slots.
+    pub stereo: StereoFrame,
+    pub estimator: ObstacleEstimator,
+    pub snapshots: Sender<Snapshot>,
+    pub counters: Arc<EvolutionCounters>,
+    pub clock: SharedClock,
+    pub config: EvolutionConfig,
+    pub stop: Shutdown,
+}
+
+/// How long to wait for the first pair before looking again.
+const IDLE_WAIT: Duration = Duration::from_millis(1);
+
+impl EvolutionThread {
+    pub fn run(mut self) -> Result<(), EngineError> {
+        let mut pair: Option<(FrameMeta, FrameMeta)> = None;
+        let mut next_turn: Option<Duration> = None;
+        while !self.stop.is_requested() {
+            if let Some(p) = self.take_pair() {
+                pair = Some(p);
+            }
+            let Some((left, right)) = pair else {
+                self.stop.sleep(IDLE_WAIT);
+                continue;
+            };
+            let started = self.clock.now();
+            let stats = self.engine.step(&self.stereo).inspect_err(|e| {
+                tracing::error!(error = %e, "generation failed: evolution stops (SNAPSHOT_STALE)");
+            })?;
+            let obstacle = self.estimator.estimate(self.engine.population());
+            let finished = self.clock.now();
+            let generation_time = finished.saturating_sub(started);
+            let overrun = generation_time > self.config.max_generation_time;
+            let pc = self.pairer.counts();
+            let c = &self.counters;
+            c.generations.store(stats.generation, Ordering::Relaxed);
+            c.pairs.store(pc.paired, Ordering::Relaxed);
+            c.pair_rejects.store(pc.rejected, Ordering::Relaxed);
+            if overrun {
+                c.overruns.fetch_add(1, Ordering::Relaxed);
+            }
+            let snapshot = Snapshot {
+                generation: stats.generation,
+                global_warning: stats.global_warning,
+                danger: stats.danger,
+                visible: stats.visible,
+                new_frame: stats.new_frame,
+                obstacle,
+                generation_time,
+                overrun,
+                left,
+                right,
+                pair_id: self.stereo.id,
+                pairs: pc.paired,
+                pair_rejects: pc.rejected,
+                skew_fault: pc.consecutive_rejects >= u64::from(self.config.skew_fault_rejects),
+                warming_up: stats.generation < self.config.warmup_generations,
+                taken_at: finished,
+            };
+            match self.snapshots.try_send(snapshot) {
+                Ok(()) => {}
+                Err(TrySendError::Full(_)) => {
+                    c.snapshots_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(TrySendError::Disconnected(_)) => break,
+            }
+            if let Some(period) = self.config.generation_period {
+                // Fixed rate from the first generation; after an overrun, restart from now
+                // rather than bursting to catch up.
+                let deadline = next_turn.unwrap_or(started) + period;
+                let now = self.clock.now();
+                next_turn = Some(deadline.max(now));
+                if deadline > now {
+                    self.stop.sleep(deadline - now);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Offers newly fetched frames to the pairer; on a pair, moves both images into the
+    /// stereo frame under a new id.
+    fn take_pair(&mut self) -> Option<(FrameMeta, FrameMeta)> {
+        for (side, reader) in [(Side::Left, &mut self.left), (Side::Right, &mut self.right)] {
+            if reader.fetch() {
+                if let Some(slot) = reader.slot() {
+                    self.pairer.offer(side, slot.meta);
+                }
+            }
+        }
+        match self.pairer.try_pair() {
+            PairOutcome::Paired { left, right, .. } => {
+                let (Some(l), Some(r)) = (self.left.slot_mut(), self.right.slot_mut()) else {
+                    return None;
+                };
+                std::mem::swap(&mut self.stereo.left, &mut l.image);
+                std::mem::swap(&mut self.stereo.right, &mut r.image);
+                self.stereo.id = self.stereo.id.wrapping_add(1);
+                Some((left, right))
+            }
+            PairOutcome::Rejected { side, skew } => {
+                tracing::debug!(
+                    side = side.name(),
+                    skew_ms = skew.as_secs_f64() * 1e3,
+                    "pair rejected"
+                );
+                None
+            }
+            PairOutcome::Waiting => None,
+        }
+    }
+}

@@ -1,0 +1,79 @@
+//! Opening the hardware a configuration names (for `flyd run`; tests build their own).
+
+use std::fs::File;
+use std::io::{self, BufWriter};
+use std::path::Path;
+
+use super::DaemonError;
+use super::clock::SharedClock;
+use super::mock_camera::mock_cameras;
+use crate::can::bus::{CanBus, CandumpLogBus, RetryPolicy, SocketCanBus, SystemClock};
+use crate::capture::{V4l2Config, V4l2Source};
+use crate::config::{CameraSource, CanTarget, DaemonConfig};
+use crate::source::FrameSource;
+
+/// The bus `target` names: a SocketCAN interface, or a candump log (`-` = stdout) whose
+/// lines carry wall-clock timestamps as `candump -l` writes them (each line is flushed
+/// as it is written, so a pipe or `tail -f` sees frames live).
+pub fn open_bus(target: &CanTarget) -> Result<Box<dyn CanBus>, DaemonError> {
+    match target {
+        CanTarget::Interface(iface) => SocketCanBus::open(iface, RetryPolicy::default())
+            .map(|bus| Box::new(bus) as Box<dyn CanBus>)
+            .map_err(|error| DaemonError::Bus {
+                target: iface.clone(),
+                error,
+            }),
+        CanTarget::Log { path, iface } if path == Path::new("-") => Ok(Box::new(
+            CandumpLogBus::new(io::stdout(), iface.clone(), SystemClock),
+        )),
+        CanTarget::Log { path, iface } => {
+            let file = File::create(path).map_err(|error| DaemonError::CanLog {
+                path: path.display().to_string(),
+                error,
+            })?;
+            Ok(Box::new(CandumpLogBus::new(
+                BufWriter::new(file),
+                iface.clone(),
+                SystemClock,
+            )))
+        }
+    }
+}
+
+/// Left and right camera.
+pub type Cameras = (Box<dyn FrameSource>, Box<dyn FrameSource>);
+
+/// The two cameras the configuration names. V4L2 devices stamp frames with the kernel's
+/// CLOCK_MONOTONIC buffer time (pair them with [`super::MonotonicClock`]); mock cameras with
+/// `clock`.
+pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Cameras, DaemonError> {
+    match &config.cameras.source {
+        CameraSource::Mock { scenario } => {
+            let (w, h) = (config.cameras.width, config.cameras.height);
+            let (left, right, _) = mock_cameras(scenario, w, h, clock)
+                .map_err(|e| DaemonError::Cameras(e.to_string()))?;
+            Ok((Box::new(left), Box::new(right)))
+        }
+        CameraSource::Devices { left, right } => {
+            let c = &config.cameras;
+            let camera =
+                |device: &std::path::PathBuf| -> Result<Box<dyn FrameSource>, DaemonError> {
+                    let v4l2 = V4l2Config {
+                        device: device.clone(),
+                        width: c.width,
+                        height: c.height,
+                        fps: c.fps.round() as u32,
+                        format: c.pixel_format,
+                    };
+                    v4l2.validate()
+                        .map_err(|e| DaemonError::Cameras(format!("{}: {e}", device.display())))?;
+                    // Not opened here: a camera missing at start is a fault the daemon reports
+                    // (CAMERA_ERROR, safe command) while its capture thread retries, not a
+                    // reason to refuse to start.
+                    let output = v4l2.format.natural_output();
+                    Ok(Box::new(V4l2Source::new(v4l2, output)))
+                };
+            Ok((camera(left)?, camera(right)?))
+        }
+    }
+}

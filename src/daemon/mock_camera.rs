@@ -1,0 +1,254 @@
+//! hw-mock scenarios as two [`FrameSource`]s, for the demo, the tests and the end-to-end bench.
+//!
+//! Both cameras share one [`MockStereo`] renderer (a frame pair is rendered once, by whichever
+//! capture thread asks first; the other copies its image from the cache). Frame `k` is due at
+//! `start + k / fps` on the daemon clock and stamped with that time on both cameras, so the
+//! pairs are exactly synchronised, like hardware-triggered cameras. A camera that falls behind
+//! (a slow debug build) skips to the frame due now, and the other follows it, rather than
+//! delivering an ever older backlog. After the scenario's last frame: end of stream.
+//!
+//! The lock between the two capture threads is the mock's business (it stands for the shared
+//! trigger of two real cameras); the evolution thread never touches it.
+
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use hw_mock::Scenario;
+
+use super::clock::SharedClock;
+use super::pairer::Side;
+use crate::frame::{PixelFormat, PreparedImage};
+use crate::mock::{MockError, MockStereo};
+use crate::source::{FrameMeta, FrameSource, SourceError};
+
+/// What both cameras share.
+struct Feed {
+    stereo: MockStereo,
+    /// Index of the cached pair (`None` before the first).
+    cached: Option<u32>,
+    left: Vec<u8>,
+    right: Vec<u8>,
+    /// Capture time of the first delivered frame with an obstacle in the lane.
+    first_obstacle_at: Option<Duration>,
+}
+
+/// Ground truth of a mock run, readable while it runs.
+#[derive(Clone)]
+pub struct MockTruth(Arc<Mutex<Feed>>, Option<u32>);
+
+impl MockTruth {
+    /// Capture timestamp of the first frame delivered that shows an obstacle in the lane (the
+    /// start of a reaction-time measurement).
+    pub fn first_obstacle_at(&self) -> Option<Duration> {
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .first_obstacle_at
+    }
+
+    /// The scenario's first frame with an obstacle in the lane.
+    pub fn first_obstacle_frame(&self) -> Option<u32> {
+        self.1
+    }
+}
+
+pub struct MockCamera {
+    name: String,
+    side: Side,
+    feed: Arc<Mutex<Feed>>,
+    clock: SharedClock,
+    start: Duration,
+    period: Duration,
+    frames: u32,
+    first_obstacle: Option<u32>,
+    /// Next frame this camera wants.
+    next: u32,
+    pixels: Vec<u8>,
+    size: (u32, u32),
+}
+
+/// The two cameras of `scenario` through the mock rig at `width` x `height`, paced on `clock`
+/// at the scenario's frame rate from now on.
+pub fn mock_cameras(
+    scenario: &str,
+    width: u32,
+    height: u32,
+    clock: &SharedClock,
+) -> Result<(MockCamera, MockCamera, MockTruth), MockCameraError> {
+    let scenario = Scenario::by_name(scenario).ok_or_else(|| MockCameraError::UnknownScenario {
+        name: scenario.to_string(),
+        known: Scenario::names().join(", "),
+    })?;
+    let period = Duration::from_secs_f64(1.0 / scenario.fps());
+    let frames = scenario.frame_count();
+    let first_obstacle = scenario.first_obstacle_frame();
+    let stereo = MockStereo::new(scenario, width, height)?;
+    let bytes = width as usize * height as usize * 3;
+    let feed = Arc::new(Mutex::new(Feed {
+        stereo,
+        cached: None,
+        left: vec![0; bytes],
+        right: vec![0; bytes],
+        first_obstacle_at: None,
+    }));
+    let start = clock.now();
+    let camera = |side: Side| MockCamera {
+        name: format!("mock:{}", side.name()),
+        side,
+        feed: feed.clone(),
+        clock: clock.clone(),
+        start,
+        period,
+        frames,
+        first_obstacle,
+        next: 0,
+        pixels: vec![0; bytes],
+        size: (width, height),
+    };
+    Ok((
+        camera(Side::Left),
+        camera(Side::Right),
+        MockTruth(feed.clone(), first_obstacle),
+    ))
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum MockCameraError {
+    #[error("unknown mock scenario '{name}' (known: {known})")]
+    UnknownScenario { name: String, known: String },
+    #[error(transparent)]
+    Mock(#[from] MockError),
+}
+
+impl MockCamera {
+    fn due(&self, k: u32) -> Duration {
+        self.start + self.period * k
+    }
+
+    /// Renders (or takes from the cache) the pair this camera should deliver next, copies its
+    /// image out, and returns its index.
+    fn fetch(&mut self, now: Duration) -> Result<u32, SourceError> {
+        let mut feed = self.feed.lock().unwrap_or_else(PoisonError::into_inner);
+        let k = match feed.cached {
+            // The other camera already rendered this frame or a later one: follow it.
+            Some(c) if c >= self.next => c,
+            _ => {
+                let elapsed = now.saturating_sub(self.start);
+                let due_now = (elapsed.as_nanos() / self.period.as_nanos().max(1)) as u32;
+                let k = self.next.max(due_now);
+                if k >= self.frames {
+                    return Err(SourceError::EndOfStream);
+                }
+                let feed = &mut *feed;
+                let (l, r) = feed.stereo.frame(k).map_err(|e| SourceError::Format {
+                    device: self.name.clone(),
+                    reason: e.to_string(),
+                })?;
+                feed.left.copy_from_slice(l);
+                feed.right.copy_from_slice(r);
+                feed.cached = Some(k);
+                k
+            }
+        };
+        let src = match self.side {
+            Side::Left => &feed.left,
+            Side::Right => &feed.right,
+        };
+        self.pixels.copy_from_slice(src);
+        if self.first_obstacle.is_some_and(|f| k >= f) && feed.first_obstacle_at.is_none() {
+            feed.first_obstacle_at = Some(self.due(k));
+        }
+        Ok(k)
+    }
+}
+
+impl FrameSource for MockCamera {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    fn next_frame(
+        &mut self,
+        out: &mut PreparedImage,
+        timeout: Duration,
+    ) -> Result<FrameMeta, SourceError> {
+        if self.next >= self.frames {
+            return Err(SourceError::EndOfStream);
+        }
+        let now = self.clock.now();
+        let due = self.due(self.next);
+        if due > now {
+            let wait = due - now;
+            if wait > timeout {
+                std::thread::sleep(timeout);
+                return Err(SourceError::Timeout(timeout));
+            }
+            std::thread::sleep(wait);
+        }
+        let k = self.fetch(self.clock.now())?;
+        out.prepare(PixelFormat::Rgb8, &self.pixels)
+            .map_err(|e| SourceError::Format {
+                device: self.name.clone(),
+                reason: e.to_string(),
+            })?;
+        self.next = k + 1;
+        Ok(FrameMeta {
+            timestamp: self.due(k),
+            sequence: u64::from(k),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::bus::ManualClock;
+
+    #[test]
+    fn both_cameras_deliver_the_same_frames_with_the_same_timestamps() {
+        let clock = ManualClock::new(Duration::from_secs(100));
+        let shared: SharedClock = Arc::new(clock.clone());
+        let (mut l, mut r, truth) =
+            mock_cameras("pedestrian-steps-in", 64, 48, &shared).expect("scenario");
+        let mut img = PreparedImage::new(64, 48).expect("image");
+        let t = Duration::from_millis(1);
+        let a = l.next_frame(&mut img, t).expect("frame 0");
+        let b = r.next_frame(&mut img, t).expect("frame 0");
+        assert_eq!((a, b.sequence), (b, 0));
+        assert!(matches!(
+            l.next_frame(&mut img, t),
+            Err(SourceError::Timeout(_))
+        ));
+        // The clock jumps 10 frames: the left camera skips to the frame due now, the right
+        // one follows it.
+        clock.advance(Duration::from_millis(340));
+        let a = l.next_frame(&mut img, t).expect("frame");
+        let b = r.next_frame(&mut img, t).expect("frame");
+        assert_eq!(a.sequence, 10);
+        assert_eq!(a, b);
+        assert_eq!(truth.first_obstacle_frame(), Some(30));
+        assert_eq!(truth.first_obstacle_at(), None);
+        clock.advance(Duration::from_secs(1));
+        l.next_frame(&mut img, t).expect("frame");
+        assert_eq!(
+            truth.first_obstacle_at(),
+            Some(Duration::from_secs(100) + Duration::from_secs_f64(1.0 / 30.0) * 40)
+        );
+        clock.advance(Duration::from_secs(10));
+        assert!(matches!(
+            l.next_frame(&mut img, t),
+            Err(SourceError::EndOfStream)
+        ));
+        // The right camera still delivers the pair the left one took, then ends too.
+        assert_eq!(r.next_frame(&mut img, t).map(|m| m.sequence).ok(), Some(40));
+        assert!(matches!(
+            r.next_frame(&mut img, t),
+            Err(SourceError::EndOfStream)
+        ));
+        assert!(mock_cameras("nope", 64, 48, &shared).is_err());
+    }
+}

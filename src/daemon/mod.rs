@@ -1,0 +1,366 @@
+//! The real-time daemon: cameras in, CAN frames out.
+//!
+//! ```text
+//!  [flyd-cap-left ]--FrameRing--\                                    
+//!                                >--[flyd-evolution]--snapshots-->[flyd-control]--> CAN bus
+//!  [flyd-cap-right]--FrameRing--/     pairer, engine   (bounded,     decider, faults,  systemd
+//!                                                       try_send)    periods, logs
+//! ```
+//!
+//! - [`capture`]: one thread per camera, `FrameSource::next_frame` straight into a ring slot;
+//!   never blocks on a consumer, polls with a timeout, reopens a failing device with backoff.
+//! - [`ring`]: lock-free newest-frame slots (triple buffer), drops counted.
+//! - [`pairer`]: left/right matching by capture timestamp (pure).
+//! - [`evolution`]: one generation per period on the newest pair, [`Snapshot`]s out with
+//!   `try_send` (never blocks).
+//! - [`control`]: decisions ([`crate::decision::Decider`]), fault detection ([`faults`]), CAN
+//!   frames at fixed periods, logs, systemd notifications ([`notify`]).
+//!
+//! # Invariants
+//! - Only the control thread writes to the CAN bus and to the systemd socket.
+//! - No thread waits on another one's progress: capture and evolution hand over through
+//!   lock-free slots and `try_send`; the control thread runs on its own periods and reads
+//!   counters. A stalled thread shows up as a fault, never as a stalled pipeline.
+//! - The engine never reads a clock; all time comes from the injected [`clock::Clock`], and
+//!   frame timestamps must be on its timebase (CLOCK_MONOTONIC in production).
+//! - Shutdown (the [`Shutdown`] flag, or a mock scenario's end of stream): the control thread
+//!   sends its last command (reason SHUTDOWN) and a status with state SHUTDOWN, then every
+//!   thread stops and is joined; this takes at most one capture poll timeout (<= 250 ms).
+//! - Nothing on the real-time path returns an error for a runtime fault: faults become fault
+//!   bits and the safe command. [`run`] fails only on start-up errors.
+
+pub mod bench;
+pub mod capture;
+pub mod clock;
+pub mod control;
+pub mod evolution;
+pub mod faults;
+pub mod hardware;
+pub mod mock_camera;
+pub mod notify;
+pub mod pairer;
+pub mod ring;
+pub mod snapshot;
+pub mod stats;
+pub mod threads;
+
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use thiserror::Error;
+
+pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
+pub use clock::{MonotonicClock, SharedClock};
+pub use control::ControlReport;
+pub use hardware::Cameras;
+pub use snapshot::{ObstacleEstimate, Snapshot};
+pub use threads::{Shutdown, spawn_named};
+
+use crate::can::bus::CanBus;
+use crate::can::{CanConfigError, Transmitter};
+use crate::config::{ConfigError, DaemonConfig};
+use crate::decision::{Decider, DecisionConfigError};
+use crate::engine::{Engine, EngineError};
+use crate::frame::{FrameError, PreparedImage, StereoFrame};
+use capture::{CameraHealth, CaptureThread};
+use control::{ControlThread, Inputs};
+use evolution::{EvolutionCounters, EvolutionThread};
+use faults::{FaultConfig, FaultMonitor};
+use notify::ServiceNotifier;
+use pairer::{Pairer, Side};
+use ring::frame_ring;
+use snapshot::ObstacleEstimator;
+
+/// Why the daemon could not start (runtime faults are not errors: see the module docs).
+#[derive(Debug, Error)]
+pub enum DaemonError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("engine: {0}")]
+    Engine(#[from] EngineError),
+    #[error(
+        "camera {camera} delivers {got_w}x{got_h} but the configuration says {want_w}x{want_h}"
+    )]
+    CameraSize {
+        camera: String,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("frame buffers: {0}")]
+    Frame(#[from] FrameError),
+    #[error("CAN configuration: {0}")]
+    Can(#[from] CanConfigError),
+    #[error("decision configuration: {0}")]
+    Decision(#[from] DecisionConfigError),
+    #[error("CAN bus {target}: {error}")]
+    Bus {
+        target: String,
+        error: crate::can::bus::BusError,
+    },
+    #[error("CAN log {path}: {error}")]
+    CanLog { path: String, error: std::io::Error },
+    #[error("cameras: {0}")]
+    Cameras(String),
+    #[error("cannot start thread {thread}: {error}")]
+    Spawn {
+        thread: &'static str,
+        error: std::io::Error,
+    },
+    #[error("thread {thread} panicked")]
+    Panicked { thread: &'static str },
+}
+
+/// Why the run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EndReason {
+    /// The shutdown flag (signal, `--duration`, test).
+    Shutdown,
+    /// A camera reached its end of stream (a finished mock scenario).
+    EndOfStream,
+}
+
+/// One camera's figures at the end of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CameraReport {
+    pub frames: u64,
+    /// Overwritten in the ring before the evolution thread took them.
+    pub dropped: u64,
+    pub timeouts: u64,
+    pub errors: u64,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunReport {
+    pub ended_by: EndReason,
+    pub control: ControlReport,
+    pub left: CameraReport,
+    pub right: CameraReport,
+    pub generations: u64,
+    pub pairs: u64,
+    pub pair_rejects: u64,
+    pub snapshots_dropped: u64,
+    pub overruns: u64,
+    /// The evolution thread stopped on an engine error (already logged; the daemon ran on in
+    /// FAULT with the safe command).
+    pub evolution_error: Option<String>,
+}
+
+const EVOLUTION: &str = "flyd-evolution";
+const CONTROL: &str = "flyd-control";
+const CAPTURE: [&str; 2] = ["flyd-cap-left", "flyd-cap-right"];
+
+/// Runs the daemon on the given hardware until `shutdown` is requested or a camera ends its
+/// stream. See the module docs for the threads and their promises.
+///
+/// `clock` must be the timebase of the cameras' frame timestamps.
+pub fn run(
+    cameras: Cameras,
+    bus: Box<dyn CanBus>,
+    clock: SharedClock,
+    config: &DaemonConfig,
+    shutdown: Shutdown,
+) -> Result<RunReport, DaemonError> {
+    let (width, height) = (config.cameras.width, config.cameras.height);
+    let rig = config.load_rig()?;
+    for source in [&cameras.0, &cameras.1] {
+        let (w, h) = source.size();
+        if (w, h) != (width, height) {
+            return Err(DaemonError::CameraSize {
+                camera: source.name().to_string(),
+                got_w: w,
+                got_h: h,
+                want_w: width,
+                want_h: height,
+            });
+        }
+    }
+    let engine = Engine::new(&rig, config.engine.clone())?;
+    let decider = Decider::new(config.decision)?;
+    let tx = Transmitter::new(bus, config.can.messages)?;
+    let (left_writer, left_reader) = frame_ring(width, height)?;
+    let (right_writer, right_reader) = frame_ring(width, height)?;
+    let stereo = StereoFrame::new(
+        PreparedImage::new(width, height)?,
+        PreparedImage::new(width, height)?,
+        0,
+    );
+    let (snapshot_tx, snapshot_rx) = crossbeam_channel::bounded(config.evolution.snapshot_queue);
+
+    let stop = Shutdown::new();
+    let finish = Shutdown::new();
+    let health = [
+        Arc::new(CameraHealth::default()),
+        Arc::new(CameraHealth::default()),
+    ];
+    let rings = [
+        left_writer.counters().clone(),
+        right_writer.counters().clone(),
+    ];
+    let evolution_counters = Arc::new(EvolutionCounters::default());
+    let poll_timeout = config
+        .cameras
+        .stale_timeout()
+        .clamp(config.cameras.frame_period(), Duration::from_millis(250));
+
+    let mut threads = Threads {
+        captures: Vec::new(),
+        evolution: None,
+        stop: stop.clone(),
+    };
+    let (left_source, right_source) = cameras;
+    for ((side, source), writer) in [(Side::Left, left_source), (Side::Right, right_source)]
+        .into_iter()
+        .zip([left_writer, right_writer])
+    {
+        let index = side as usize;
+        let thread = CaptureThread {
+            side,
+            source,
+            writer,
+            health: health[index].clone(),
+            clock: clock.clone(),
+            poll_timeout,
+            stop: stop.clone(),
+            finish: finish.clone(),
+        };
+        let name = CAPTURE[index];
+        let handle =
+            spawn_named(name, move || thread.run()).map_err(|error| DaemonError::Spawn {
+                thread: name,
+                error,
+            })?;
+        threads.captures.push((name, handle));
+    }
+
+    let population = config.engine.flies;
+    let evolution = EvolutionThread {
+        engine,
+        left: left_reader,
+        right: right_reader,
+        pairer: Pairer::new(config.cameras.timestamp_tolerance),
+        stereo,
+        estimator: ObstacleEstimator::new(
+            population,
+            config.evolution.lane_half_width,
+            config.evolution.obstacle_best_flies,
+            config.evolution.obstacle_min_flies,
+        ),
+        snapshots: snapshot_tx,
+        counters: evolution_counters.clone(),
+        clock: clock.clone(),
+        config: config.evolution,
+        stop: stop.clone(),
+    };
+    threads.evolution = Some(
+        spawn_named(EVOLUTION, move || {
+            evolution.run().map_err(|e| e.to_string())
+        })
+        .map_err(|error| DaemonError::Spawn {
+            thread: EVOLUTION,
+            error,
+        })?,
+    );
+
+    let start = clock.now();
+    let control = ControlThread {
+        tx,
+        decider,
+        monitor: FaultMonitor::new(
+            FaultConfig {
+                stale_timeout: config.cameras.stale_timeout(),
+                snapshot_timeout: config.control.snapshot_timeout,
+                startup_timeout: config.control.startup_timeout,
+            },
+            start,
+        ),
+        notifier: ServiceNotifier::from_env(),
+        inputs: Inputs {
+            snapshots: snapshot_rx,
+            left: health[0].clone(),
+            right: health[1].clone(),
+            left_ring: rings[0].clone(),
+            right_ring: rings[1].clone(),
+            evolution: evolution_counters.clone(),
+        },
+        clock: clock.clone(),
+        can: config.can.messages,
+        stats_interval: config.logging.stats_interval,
+        shutdown: shutdown.clone(),
+        finish: finish.clone(),
+    };
+    let control_report = spawn_named(CONTROL, move || control.run())
+        .map_err(|error| DaemonError::Spawn {
+            thread: CONTROL,
+            error,
+        })?
+        .join()
+        .map_err(|_| DaemonError::Panicked { thread: CONTROL })?;
+
+    let evolution_error = threads.join()?;
+    let camera = |i: usize| CameraReport {
+        frames: rings[i].published(),
+        dropped: rings[i].dropped(),
+        timeouts: health[i].timeouts(),
+        errors: health[i].errors(),
+    };
+    let c = &evolution_counters;
+    use std::sync::atomic::Ordering::Relaxed;
+    Ok(RunReport {
+        ended_by: if shutdown.is_requested() {
+            EndReason::Shutdown
+        } else {
+            EndReason::EndOfStream
+        },
+        control: control_report,
+        left: camera(0),
+        right: camera(1),
+        generations: c.generations.load(Relaxed),
+        pairs: c.pairs.load(Relaxed),
+        pair_rejects: c.pair_rejects.load(Relaxed),
+        snapshots_dropped: c.snapshots_dropped.load(Relaxed),
+        overruns: c.overruns.load(Relaxed),
+        evolution_error,
+    })
+}
+
+/// The worker threads; dropping it (an early return) stops and joins them.
+struct Threads {
+    captures: Vec<(&'static str, JoinHandle<()>)>,
+    evolution: Option<JoinHandle<Result<(), String>>>,
+    stop: Shutdown,
+}
+
+impl Threads {
+    /// Stops and joins every thread; returns the evolution thread's error, if any.
+    fn join(&mut self) -> Result<Option<String>, DaemonError> {
+        self.stop.request();
+        let mut panicked = None;
+        let mut evolution_error = None;
+        if let Some(handle) = self.evolution.take() {
+            match handle.join() {
+                Ok(result) => evolution_error = result.err(),
+                Err(_) => panicked = Some(EVOLUTION),
+            }
+        }
+        for (name, handle) in self.captures.drain(..) {
+            if handle.join().is_err() {
+                panicked = Some(name);
+            }
+        }
+        match panicked {
+            Some(thread) => Err(DaemonError::Panicked { thread }),
+            None => Ok(evolution_error),
+        }
+    }
+}
+
+impl Drop for Threads {
+    fn drop(&mut self) {
+        // Errors were reported by `join` already, or the caller is returning another error.
+        let _ = self.join();
+    }
+}
