@@ -17,12 +17,19 @@ mod harness;
 #[allow(dead_code)] // the host checks frames; it never makes them
 mod pattern;
 
+#[path = "vm/can_log.rs"]
+mod can_log;
+
 // The feeder's RGB -> YUYV conversion, to check on the host what the guest's cameras delivered.
 #[path = "vm/guest/src/feeder/yuyv.rs"]
 mod yuyv;
 
+use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::OnceLock;
+use std::time::Duration;
 
+use can_log::{Decoder, Frame};
 use flyd::mock::MockStereo;
 use harness::{Run, Scenario, guest_tool};
 use hw_mock::Scenario as World;
@@ -200,4 +207,322 @@ fn feeder_frames_come_back_from_both_cameras_as_rendered() {
         checked.join("; "),
         rows.len()
     ));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The release flyd in the guest: flyd-feeder plays a hw-mock scenario into the two loopback
+// cameras, flyd captures them through V4L2 and sends on vcan0; candump logs the bus.
+
+/// A flyd scenario (tests/vm/scenarios/flyd_*.sh) with what every one of them needs.
+fn flyd_scenario(name: &str) -> Scenario {
+    let vm = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vm");
+    Scenario::new(name)
+        .bin(env!("CARGO_BIN_EXE_flyd"))
+        .bin(guest_tool("flyd-feeder"))
+        .bin(vm.join("scenarios/flyd_common.sh"))
+        .input(vm.join("config/flyd-vm.toml"))
+        .input(vm.join("config/mock-rig-320x240.toml"))
+        .timeout(Duration::from_secs(300))
+}
+
+/// What a flyd scenario brought back, parsed.
+struct FlydRun {
+    run: Run,
+    frames: Vec<Frame>,
+    timeline: Vec<TimelineRow>,
+    /// flyd_event NAME -> (feeder frame index, its realtime), if the feeder had written one.
+    events: BTreeMap<String, Option<(u32, f64)>>,
+    /// flyd's JSON log lines (other lines, e.g. a panic, are in `log_text`).
+    log: Vec<serde_json::Value>,
+    log_text: String,
+}
+
+impl FlydRun {
+    fn new(run: Run) -> FlydRun {
+        run.assert_success();
+        let frames = Decoder::new().decode_log(&run.read_to_string("candump.log"));
+        let timeline = timeline(&run);
+        let events = run
+            .read_to_string("events.txt")
+            .lines()
+            .map(|line| {
+                let w: Vec<&str> = line.split_whitespace().collect();
+                assert_eq!(w.len(), 3, "events.txt line {line:?}");
+                let at = (w[1] != "-").then(|| {
+                    (
+                        w[1].parse().expect("frame index"),
+                        w[2].parse().expect("time"),
+                    )
+                });
+                (w[0].to_string(), at)
+            })
+            .collect();
+        let log_text = run.read_to_string("flyd.log");
+        let log = log_text
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect();
+        FlydRun {
+            run,
+            frames,
+            timeline,
+            events,
+            log,
+            log_text,
+        }
+    }
+
+    fn event(&self, name: &str) -> (u32, f64) {
+        self.events
+            .get(name)
+            .copied()
+            .flatten()
+            .unwrap_or_else(|| panic!("no event {name} with a frame: {:?}", self.events))
+    }
+
+    fn messages(&self, name: &str) -> Vec<&Frame> {
+        self.frames.iter().filter(|f| f.message == name).collect()
+    }
+
+    /// Realtime at which the feeder wrote scenario frame `index`.
+    fn frame_time(&self, index: u32) -> f64 {
+        self.timeline
+            .iter()
+            .find(|r| r.index == index)
+            .unwrap_or_else(|| panic!("the feeder never wrote frame {index}"))
+            .time
+    }
+
+    /// Feeder frames written in (from, to]: a duration counted in camera frames.
+    fn frames_between(&self, from: f64, to: f64) -> usize {
+        self.timeline
+            .iter()
+            .filter(|r| r.time > from && r.time <= to)
+            .count()
+    }
+
+    /// Log events whose message contains `text`.
+    fn logged(&self, text: &str) -> Vec<&serde_json::Value> {
+        self.log
+            .iter()
+            .filter(|l| l["message"].as_str().is_some_and(|m| m.contains(text)))
+            .collect()
+    }
+
+    fn exit_code(&self) -> i32 {
+        self.run.result("flyd")["exit"].parse().expect("exit=N")
+    }
+
+    /// Checks that hold for every run: all CRCs valid, every message's alive counter +1 mod 15
+    /// from frame to frame, command and status periods near the DBC's cycle time. Returns a
+    /// summary for the report.
+    fn check_bus(&self) -> String {
+        let decoder = Decoder::new();
+        assert!(!self.frames.is_empty(), "no CAN frames at all");
+        let bad: Vec<&Frame> = self.frames.iter().filter(|f| !f.crc_ok).collect();
+        assert!(
+            bad.is_empty(),
+            "{} frames with a wrong CRC, first {:?}",
+            bad.len(),
+            bad[0]
+        );
+        let mut out = vec![format!("{} frames, every CRC valid", self.frames.len())];
+        for name in ["FLYD_Command", "FLYD_Status", "FLYD_Obstacle"] {
+            let msgs = self.messages(name);
+            assert!(msgs.len() > 10, "only {} {name} frames", msgs.len());
+            for w in msgs.windows(2) {
+                assert_eq!(
+                    w[1].counter(),
+                    (w[0].counter() + 1) % 15,
+                    "{name}: alive counter {} then {} (at {} and {})",
+                    w[0].counter(),
+                    w[1].counter(),
+                    w[0].time,
+                    w[1].time
+                );
+            }
+            let mut periods: Vec<f64> = msgs
+                .windows(2)
+                .map(|w| (w[1].time - w[0].time) * 1e3)
+                .collect();
+            periods.sort_by(f64::total_cmp);
+            let median = periods[periods.len() / 2];
+            let p95 = periods[periods.len() * 95 / 100];
+            let cycle = decoder.cycle_ms(name) as f64;
+            // The control thread paces against its clock: the median holds under emulation;
+            // single periods stretch when the 2 emulated CPUs are busy.
+            assert!(
+                (median - cycle).abs() <= 0.25 * cycle,
+                "{name}: median period {median:.1} ms, DBC cycle {cycle} ms"
+            );
+            out.push(format!(
+                "{name} x{} counters +1 mod 15, period median {median:.1} ms p95 {p95:.1} ms (DBC {cycle} ms)",
+                msgs.len()
+            ));
+        }
+        out.join("; ")
+    }
+}
+
+fn pedestrian_run() -> &'static FlydRun {
+    static RUN: OnceLock<FlydRun> = OnceLock::new();
+    RUN.get_or_init(|| FlydRun::new(flyd_scenario("flyd_pedestrian").run()))
+}
+
+/// The rig file the guest's flyd loads is the mock rig the feeder renders through.
+#[test]
+fn guest_rig_file_is_the_feeders_mock_rig() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vm/config/mock-rig-320x240.toml");
+    let file = flyd::calib::load(&path).expect("loads").rig;
+    let mock = flyd::mock::mock_rig(320, 240).expect("valid");
+    for (side, a, b) in [
+        ("left", &file.left, &mock.left),
+        ("right", &file.right, &mock.right),
+    ] {
+        for p in [
+            [0.0, 0.5, 4.0],
+            [1.5, 0.0, 8.0],
+            [-2.0, 1.8, 3.0],
+            [0.3, 0.2, 20.0],
+        ] {
+            let p = nalgebra::Point3::new(p[0], p[1], p[2]);
+            let (pa, pb) = (a.pixel_from_vehicle(&p), b.pixel_from_vehicle(&p));
+            let (pa, pb) = (pa.expect("projects"), pb.expect("projects"));
+            assert!(
+                (pa - pb).norm() < 1e-6,
+                "{side}: {p:?} projects to {pa:?} with the file, {pb:?} with mock_rig"
+            );
+        }
+    }
+}
+
+#[test]
+fn flyd_sends_stop_after_the_pedestrian_steps_in() {
+    let r = pedestrian_run();
+    let bus = r.check_bus();
+    let world = World::by_name("pedestrian-steps-in").expect("scenario");
+    let appear = world.first_obstacle_frame().expect("a pedestrian");
+    let t_appear = r.frame_time(appear);
+    let commands = r.messages("FLYD_Command");
+    let sigterm = r.event("sigterm").1;
+    let early_stop: Vec<&&Frame> = commands
+        .iter()
+        .filter(|f| f.time < t_appear && f.label("Command") == "STOP")
+        .collect();
+    assert!(
+        early_stop.is_empty(),
+        "STOP before the pedestrian appeared (frame {appear}): {:?}",
+        early_stop[0]
+    );
+    let first_stop = commands
+        .iter()
+        .find(|f| f.label("Command") == "STOP")
+        .unwrap_or_else(|| {
+            panic!(
+                "no STOP command at all; flyd.log tail:\n{}",
+                tail(&r.log_text, 20)
+            )
+        });
+    let reaction_frames = r.frames_between(t_appear, first_stop.time);
+    // Natively flyd reacts within ~2 frames at 30 fps (issue 3: median <= 50 ms). Under TCG
+    // the guest is ~10x slower, and flyd there pairs ~5 frames a second: measured 25 frames
+    // (10 fps), the bound is 40.
+    assert!(
+        reaction_frames <= 40,
+        "first STOP {reaction_frames} camera frames after the pedestrian appeared"
+    );
+    let after: Vec<&&Frame> = commands
+        .iter()
+        .filter(|f| f.time >= first_stop.time && f.time < sigterm)
+        .collect();
+    let stops = after
+        .iter()
+        .filter(|f| f.label("Command") == "STOP")
+        .count();
+    assert!(
+        stops * 10 >= after.len() * 9,
+        "only {stops} of {} commands after the first STOP are STOP",
+        after.len()
+    );
+    let statuses: Vec<&Frame> = r
+        .messages("FLYD_Status")
+        .into_iter()
+        .filter(|f| f.time >= first_stop.time && f.time < sigterm)
+        .collect();
+    let running = statuses
+        .iter()
+        .filter(|f| f.label("State") == "RUNNING")
+        .count();
+    let obstacles: Vec<&Frame> = r
+        .messages("FLYD_Obstacle")
+        .into_iter()
+        .filter(|f| {
+            f.time >= first_stop.time && f.time < sigterm && f.label("ObstacleValid") == "VALID"
+        })
+        .collect();
+    let distance = obstacles.last().map_or(f64::NAN, |f| f.value("Distance"));
+    r.run.report(&format!(
+        "pedestrian at frame {appear}: first STOP (reason {}) {reaction_frames} camera frames later \
+         ({:.0} ms under TCG), none before; {stops}/{} commands STOP afterwards; status RUNNING in \
+         {running}/{} statuses; last obstacle distance {distance:.2} m; {bus}",
+        first_stop.label("CommandReason"),
+        (first_stop.time - t_appear) * 1e3,
+        after.len(),
+        statuses.len()
+    ));
+}
+
+#[test]
+fn flyd_sends_shutdown_status_and_exits_0_on_sigterm() {
+    let r = pedestrian_run();
+    assert_eq!(
+        r.exit_code(),
+        0,
+        "flyd's exit code; log tail:\n{}",
+        tail(&r.log_text, 20)
+    );
+    let (sig_frame, sigterm) = r.event("sigterm");
+    let (exit_frame, exited) = r.event("flyd-exited");
+    let statuses = r.messages("FLYD_Status");
+    let last = statuses.last().expect("status frames");
+    assert_eq!(
+        last.label("State"),
+        "SHUTDOWN",
+        "last status frame {last:?}"
+    );
+    assert!(last.time >= sigterm, "the SHUTDOWN status predates SIGTERM");
+    let shutdown_statuses = statuses
+        .iter()
+        .filter(|f| f.label("State") == "SHUTDOWN")
+        .count();
+    let last_command = r
+        .messages("FLYD_Command")
+        .last()
+        .copied()
+        .expect("commands");
+    assert_eq!(last_command.label("CommandReason"), "SHUTDOWN");
+    let after: Vec<&Frame> = r.frames.iter().filter(|f| f.time > last.time).collect();
+    assert!(
+        after.iter().all(|f| f.message != "FLYD_Status"),
+        "status frames after the SHUTDOWN one: {after:?}"
+    );
+    assert!(
+        !r.logged("shutting down").is_empty(),
+        "no 'shutting down' log event"
+    );
+    let stopped = r.logged("flyd stopped");
+    assert_eq!(stopped.len(), 1, "one 'flyd stopped' event");
+    r.run.report(&format!(
+        "SIGTERM at feeder frame {sig_frame}: last status SHUTDOWN ({shutdown_statuses} such), last \
+         command {} reason SHUTDOWN, exit code 0 by feeder frame {exit_frame} ({:.0} ms under TCG); \
+         log: shutting down, flyd stopped {}",
+        last_command.label("Command"),
+        (exited - sigterm) * 1e3,
+        stopped[0]
+    ));
+}
+
+fn tail(text: &str, lines: usize) -> String {
+    let all: Vec<&str> = text.lines().collect();
+    all[all.len().saturating_sub(lines)..].join("\n")
 }

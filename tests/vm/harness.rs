@@ -153,6 +153,7 @@ pub struct Scenario {
     name: String,
     script: PathBuf,
     bins: Vec<PathBuf>,
+    inputs: Vec<PathBuf>,
     timeout: Duration,
 }
 
@@ -162,6 +163,7 @@ impl Scenario {
             name: name.to_string(),
             script: Path::new(HERE).join("scenarios").join(format!("{name}.sh")),
             bins: Vec::new(),
+            inputs: Vec::new(),
             timeout: Duration::from_secs(180),
         }
     }
@@ -169,6 +171,14 @@ impl Scenario {
     /// Puts a binary on the guest's PATH under its file name (with its shared libraries).
     pub fn bin(mut self, path: impl Into<PathBuf>) -> Scenario {
         self.bins.push(path.into());
+        self
+    }
+
+    /// Copies a data file (a config, a calibration) to `$RESULTS/input/<file name>` before the
+    /// run, for the scenario to read: unlike `.bin`, it need not be executable.
+    #[allow(dead_code)] // used by the flyd scenarios only
+    pub fn input(mut self, path: impl Into<PathBuf>) -> Scenario {
+        self.inputs.push(path.into());
         self
     }
 
@@ -198,6 +208,16 @@ impl Scenario {
         }
         std::fs::create_dir_all(&results)
             .unwrap_or_else(|e| panic!("cannot create {}: {e}", results.display()));
+        if !self.inputs.is_empty() {
+            let dir = results.join("input");
+            std::fs::create_dir_all(&dir)
+                .unwrap_or_else(|e| panic!("cannot create {}: {e}", dir.display()));
+            for input in &self.inputs {
+                let name = input.file_name().expect("an input is a file");
+                std::fs::copy(input, dir.join(name))
+                    .unwrap_or_else(|e| panic!("cannot copy {}: {e}", input.display()));
+            }
+        }
 
         let mut cmd = match backend {
             Backend::Qemu => {

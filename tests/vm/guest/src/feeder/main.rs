@@ -92,6 +92,11 @@ struct Args {
     /// YUYV.
     #[arg(long = "as", requires = "format")]
     format_as: Option<String>,
+    /// Lead-in: write the scenario's first frame over and over (paced, not in the timeline)
+    /// until FILE exists, then play the scenario from its start. Lets flyd start and warm up
+    /// on the empty first scene however slow the machine is.
+    #[arg(long, value_name = "FILE")]
+    wait_for: Option<String>,
     /// First frame index of --stop-camera or --garbage.
     #[arg(long, default_value_t = 0)]
     at_frame: u32,
@@ -357,6 +362,32 @@ fn main() -> Result<()> {
     };
 
     let period = Duration::from_secs_f64(1.0 / fps);
+    if let Some(file) = &args.wait_for {
+        let start = Instant::now();
+        let mut n: u32 = 0;
+        while !std::path::Path::new(file).exists() {
+            let pair = source.get(0)?;
+            for c in 0..2 {
+                if sinks[c].frame_len == pair[c].len() {
+                    sinks[c].write(&pair[c])?;
+                } else {
+                    garbage(&mut scratch[c], n, c);
+                    sinks[c].write(&scratch[c])?;
+                }
+            }
+            if n == 0 {
+                eprintln!("flyd-feeder: lead-in: first frame written; frame 0 until {file} exists");
+            }
+            n += 1;
+            if let Some(wait) = period.mul_f64(f64::from(n)).checked_sub(start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+        }
+        eprintln!(
+            "flyd-feeder: lead-in: {n} frames in {:.1} s; {file} exists, playing",
+            start.elapsed().as_secs_f64()
+        );
+    }
     let start = Instant::now();
     let mut last_feed = [Feed::Frame; 2];
     let mut index: u32 = 0;
