@@ -85,6 +85,7 @@ impl CaptureThread {
         let side = self.side.name();
         let mut backoff = BACKOFF_MIN;
         let mut in_error = false;
+        let mut logged_error = String::new();
         while !self.stop.is_requested() {
             let slot = self.writer.slot();
             match self.source.next_frame(&mut slot.image, self.poll_timeout) {
@@ -124,13 +125,26 @@ impl CaptureThread {
                             "camera error: reopening with backoff (logged once until it recovers)"
                         );
                         in_error = true;
+                        logged_error = e.to_string();
                     }
                     if self.stop.sleep(backoff) {
                         break;
                     }
                     backoff = (backoff * 2).min(BACKOFF_MAX);
                     if let Err(e) = self.source.reopen() {
-                        tracing::debug!(camera, side, error = %e, "reopen failed");
+                        // A reopen that fails for another reason than the one logged (a camera
+                        // that is "not open" at start-up, then has the wrong format) is worth a
+                        // warning of its own: the first error alone does not say what is wrong.
+                        let text = e.to_string();
+                        if text != logged_error {
+                            tracing::warn!(
+                                camera, side, error = %e,
+                                "camera error: reopening with backoff (logged once until it recovers)"
+                            );
+                            logged_error = text;
+                        } else {
+                            tracing::debug!(camera, side, error = %e, "reopen failed");
+                        }
                     }
                 }
             }
