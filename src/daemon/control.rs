@@ -372,7 +372,7 @@ impl<B: CanBus> ControlThread<B> {
                 if !s.can_failing {
                     tracing::warn!(
                         %error,
-                        message,
+                        can_message = message,
                         retryable = error.is_retryable(),
                         "CAN write failed: sending again every period (logged once until it recovers)"
                     );
