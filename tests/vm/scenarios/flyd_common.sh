@@ -15,10 +15,26 @@
 FLYD_DIR="${TMPDIR:-/tmp}/flyd-vm.$$"
 FLYD_GO="$FLYD_DIR/go"
 
-# flyd_event NAME: records when a scenario action happened, in feeder frames.
+# flyd_event NAME: records when a scenario action happened, in feeder frames: the feeder's
+# latest complete timeline line (counted with wc: tail on a 9p file being appended can return
+# a torn line).
 flyd_event() {
-    _last="$(tail -n 1 "$RESULTS/timeline.txt" 2>/dev/null | cut -d' ' -f1,2)"
-    echo "$1 ${_last:-- -}" >>"$RESULTS/events.txt"
+    _n="$(wc -l <"$RESULTS/timeline.txt" 2>/dev/null || echo 0)"
+    if [ "$_n" -gt 0 ]; then
+        echo "$1 $(grep "^$((_n - 1)) " "$RESULTS/timeline.txt" | cut -d' ' -f1,2)" >>"$RESULTS/events.txt"
+    else
+        echo "$1 - -" >>"$RESULTS/events.txt"
+    fi
+}
+
+# flyd_event_after NAME: like flyd_event for an action just done, but with a frame the feeder
+# wrote after the action (the second one after the latest complete line: the first may have
+# been under way), so that its time is no earlier than the action. flyd_event, taken before an
+# action, gives a time no later than it.
+flyd_event_after() {
+    _n="$(wc -l <"$RESULTS/timeline.txt")"
+    flyd_wait_frame $((_n + 1)) 30
+    echo "$1 $(grep "^$((_n + 1)) " "$RESULTS/timeline.txt" | cut -d' ' -f1,2)" >>"$RESULTS/events.txt"
 }
 
 # flyd_config: writes $FLYD_DIR/flyd.toml for this machine's labelled cameras.
