@@ -5,9 +5,11 @@
 //!
 //! A test that cannot boot the VM fails; none of them is ever skipped.
 //!
-//! These smoke scenarios prove the infrastructure (kernel stacks, devices, results path)
-//! before the daemon exists; flyd's scenarios will be the same shape, with
-//! `.bin(env!("CARGO_BIN_EXE_flyd"))`.
+//! The smoke scenarios prove the infrastructure (kernel stacks, devices, results path, the
+//! feeder); the flyd scenarios run the release flyd, unchanged, on the two cameras that
+//! flyd-feeder plays a hw-mock scenario into, and decode vcan0 with config/flyd.dbc. Under TCG
+//! the guest is ~10x slower than this machine: the flyd scenarios count camera frames (the
+//! feeder's timeline), not milliseconds. The pedestrian and SIGTERM tests share one boot.
 
 #[path = "vm/harness.rs"]
 mod harness;
