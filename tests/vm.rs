@@ -670,9 +670,11 @@ fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
     let age_ms = raised["left_frame_age_ms"]
         .as_u64()
         .expect("left_frame_age_ms");
+    // On flyd's own clock: raised once the newest left frame is 6 frame periods (600 ms) old,
+    // and no more than 3 frame periods late (its control loop runs every 20 ms).
     assert!(
-        age_ms >= 600,
-        "raised at a left frame age of {age_ms} ms, under the 6 frames"
+        (600..=900).contains(&age_ms),
+        "raised at a left frame age of {age_ms} ms; the limit is 6 frames, 600 ms"
     );
     assert_eq!(first_stale.label("State"), "DEGRADED");
     // The safe command (SLOW) from the first command after the stale status until it clears.
