@@ -60,8 +60,8 @@ pub struct DecisionConfig {
 impl Default for DecisionConfig {
     fn default() -> Self {
         Self {
-            slow_threshold: 0.3,
-            stop_threshold: 0.6,
+            slow_threshold: 0.5,
+            stop_threshold: 1.5,
             release_ratio: 0.8,
             slow_hold: Duration::from_millis(500),
             stop_hold: Duration::from_millis(1000),

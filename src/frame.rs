@@ -25,6 +25,13 @@ pub const NORMALISED_MEAN: f64 = 128.0;
 /// Standard deviation of every colour channel after photometric normalisation.
 pub const NORMALISED_STD: f64 = 48.0;
 
+/// The stored gradient byte of Sobel responses `gx`, `gy`: `round(|g| / 4)`, saturating.
+#[inline(always)]
+fn quantise(gx: i32, gy: i32) -> u8 {
+    let norm = ((gx * gx + gy * gy) as f32).sqrt() / GRADIENT_SCALE;
+    (norm + 0.5).min(255.0) as u8
+}
+
 /// Pixel formats a frame can arrive in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PixelFormat {
@@ -68,6 +75,8 @@ pub struct PreparedImage {
     data: Vec<u8>,
     /// Scratch luma plane (unpadded) reused across frames.
     luma: Vec<u8>,
+    /// One row of gradient bytes (scratch).
+    row_scratch: Vec<u8>,
     /// Mean luma of each [`BLOCK`] x [`BLOCK`] block, row-major (what the engine compares
     /// between frames to see where the scene changed).
     block_means: Vec<u8>,
@@ -91,6 +100,7 @@ impl PreparedImage {
             channels: 3,
             data: vec![0; stride * (h + 2 * PAD)],
             luma: vec![0; w * h],
+            row_scratch: vec![0; w],
             block_means: vec![0; w.div_ceil(BLOCK) * h.div_ceil(BLOCK)],
         })
     }
@@ -211,9 +221,22 @@ impl PreparedImage {
     fn normalisation(&self, format: PixelFormat, pixels: &[u8]) -> [[u8; 256]; 3] {
         let channels = format.bytes_per_pixel();
         let mut hist = [[0u32; 256]; 3];
-        for px in pixels.chunks_exact(channels) {
-            for (c, &v) in px.iter().enumerate() {
-                hist[c][v as usize] += 1;
+        let row_len = self.width * channels;
+        for row in pixels.chunks_exact(row_len) {
+            match channels {
+                3 => {
+                    let [h0, h1, h2] = &mut hist;
+                    for px in row.chunks_exact(3) {
+                        h0[px[0] as usize] += 1;
+                        h1[px[1] as usize] += 1;
+                        h2[px[2] as usize] += 1;
+                    }
+                }
+                _ => {
+                    for &v in row {
+                        hist[0][v as usize] += 1;
+                    }
+                }
             }
         }
         let mut lut = [[0u8; 256]; 3];
@@ -259,24 +282,53 @@ impl PreparedImage {
         }
     }
 
-    /// Sobel gradient norm of the luma, with the image edge replicated.
+    /// Sobel gradient norm of the luma, with the image edge replicated. Rows are computed into
+    /// a scratch row with straight-line loops over three row slices (the compiler vectorises
+    /// them), then spread into the gradient bytes.
     fn fill_gradient(&mut self) {
         let (w, h) = (self.width, self.height);
-        let luma = &self.luma;
-        let at = |x: usize, y: usize| luma[y * w + x] as i32;
+        let mut row_norms = std::mem::take(&mut self.row_scratch);
+        row_norms.resize(w, 0);
         for y in 0..h {
             let (ym, yp) = (y.saturating_sub(1), (y + 1).min(h - 1));
+            let (r0, r1, r2) = (
+                &self.luma[ym * w..(ym + 1) * w],
+                &self.luma[y * w..(y + 1) * w],
+                &self.luma[yp * w..(yp + 1) * w],
+            );
+            let norm = |xm: usize, x: usize, xp: usize| -> u8 {
+                let at = |r: &[u8], i: usize| r[i] as i32;
+                let gx = (at(r0, xp) + 2 * at(r1, xp) + at(r2, xp))
+                    - (at(r0, xm) + 2 * at(r1, xm) + at(r2, xm));
+                let gy = (at(r2, xm) + 2 * at(r2, x) + at(r2, xp))
+                    - (at(r0, xm) + 2 * at(r0, x) + at(r0, xp));
+                quantise(gx, gy)
+            };
+            row_norms[0] = norm(0, 0, 1.min(w - 1));
+            row_norms[w - 1] = norm(w.saturating_sub(2), w - 1, w - 1);
+            if w > 2 {
+                let n = w - 2;
+                let (a0, b0, c0) = (&r0[..n], &r0[1..n + 1], &r0[2..n + 2]);
+                let (a1, c1) = (&r1[..n], &r1[2..n + 2]);
+                let (a2, b2, c2) = (&r2[..n], &r2[1..n + 2 - 1], &r2[2..n + 2]);
+                let out = &mut row_norms[1..n + 1];
+                for i in 0..n {
+                    let gx = (c0[i] as i32 + 2 * c1[i] as i32 + c2[i] as i32)
+                        - (a0[i] as i32 + 2 * a1[i] as i32 + a2[i] as i32);
+                    let gy = (a2[i] as i32 + 2 * b2[i] as i32 + c2[i] as i32)
+                        - (a0[i] as i32 + 2 * b0[i] as i32 + c0[i] as i32);
+                    out[i] = quantise(gx, gy);
+                }
+            }
             let row = self.offset(0, y as isize);
-            for x in 0..w {
-                let (xm, xp) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                let gx = (at(xp, ym) + 2 * at(xp, y) + at(xp, yp))
-                    - (at(xm, ym) + 2 * at(xm, y) + at(xm, yp));
-                let gy = (at(xm, yp) + 2 * at(x, yp) + at(xp, yp))
-                    - (at(xm, ym) + 2 * at(x, ym) + at(xp, ym));
-                let norm = ((gx * gx + gy * gy) as f32).sqrt() / GRADIENT_SCALE;
-                self.data[row + x * BPP + 3] = norm.round().min(255.0) as u8;
+            for (px, &g) in self.data[row..row + w * BPP]
+                .chunks_exact_mut(BPP)
+                .zip(row_norms.iter())
+            {
+                px[3] = g;
             }
         }
+        self.row_scratch = row_norms;
     }
 
     fn replicate_border(&mut self) {

@@ -82,7 +82,7 @@ fn bad_configs_name_the_key_and_the_file() {
         "min_depth",
     );
     check(
-        "stop_threshold = 0.6",
+        "stop_threshold = 1.5",
         "stop_threshold = 0.1",
         "decision.stop_threshold",
         "slow",

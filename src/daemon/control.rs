@@ -6,18 +6,21 @@
 //! default (the [`CanConfig`] periods), whether or not anything changed. The command is decided
 //! when it is due, by the [`Decider`] fed with
 //!
-//! - the **highest danger** among the snapshots received since the previous command (a danger
+//! - the **highest global warning** among the snapshots received since the previous command (a
 //!   spike between two commands is not lost; releases stay conservative), or the newest
 //!   snapshot's when none arrived;
 //! - the current fault bits: any fault makes the decider fall back to its safe command.
 //!
 //! Snapshots of a population still warming up (fewer than `warmup_generations`) carry no
-//! trusted danger: the decider gets NaN (its fault path: the safe command, reason
+//! trusted warning: the decider gets NaN (its fault path: the safe command, reason
 //! FAULT_FALLBACK) and the state stays INIT. `READY=1` goes to systemd with the first snapshot
 //! (both cameras deliver, a generation ran); RUNNING follows the warm-up.
 //!
-//! The command frame's `GlobalWarning` signal carries that danger (m^-3, the value the
-//! thresholds compare), not the paper's contrast-dependent mean warning.
+//! The command frame's `GlobalWarning` signal carries that global warning (the paper's mean
+//! warning, made portable by the engine's photometric normalisation and per-sample SSD; the
+//! value the thresholds compare). The engine's `danger` (a fitness-weighted mean of the
+//! geometric factor) says where the evidence is, not how much there is: on an empty road a few
+//! weak matches near the vehicle give it a high value, so it is logged, never decided on.
 //!
 //! CAN write errors never stop the loop: they are counted, logged once per episode (and once
 //! when writes recover), raise CAN_TX_ERROR, and the next period simply sends again.
@@ -134,8 +137,8 @@ pub struct ControlThread<B: CanBus> {
 struct Loop {
     latest: Option<Snapshot>,
     latest_at: Option<Duration>,
-    /// Highest danger since the last command (NaN-propagating: a NaN is a fault).
-    danger_since_command: Option<f64>,
+    /// Highest global warning since the last command (NaN-propagating: a NaN is a fault).
+    warning_since_command: Option<f64>,
     faults: FaultBits,
     state: State,
     command: Command,
@@ -158,7 +161,7 @@ impl<B: CanBus> ControlThread<B> {
         let mut s = Loop {
             latest: None,
             latest_at: None,
-            danger_since_command: None,
+            warning_since_command: None,
             faults: FaultBits::empty(),
             state: State::Init,
             command: self.decider.command(),
@@ -233,8 +236,8 @@ impl<B: CanBus> ControlThread<B> {
             if snapshot.warming_up {
                 continue;
             }
-            let d = snapshot.danger;
-            s.danger_since_command = Some(match s.danger_since_command {
+            let d = snapshot.global_warning;
+            s.warning_since_command = Some(match s.warning_since_command {
                 Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
                 Some(m) => m.max(d),
                 None => d,
@@ -300,14 +303,14 @@ impl<B: CanBus> ControlThread<B> {
     }
 
     fn send_command(&mut self, s: &mut Loop, now: Duration) {
-        let danger = s
-            .danger_since_command
+        let warning = s
+            .warning_since_command
             .take()
-            .or_else(|| s.latest.filter(|l| !l.warming_up).map(|l| l.danger))
+            .or_else(|| s.latest.filter(|l| !l.warming_up).map(|l| l.global_warning))
             .unwrap_or(f64::NAN);
         let decision = self.decider.update(
             DecisionInput {
-                global_warning: danger,
+                global_warning: warning,
                 faults: s.faults,
             },
             now,
@@ -318,14 +321,14 @@ impl<B: CanBus> ControlThread<B> {
                 from = %decision.previous,
                 to = %decision.command,
                 reason = %decision.reason,
-                danger,
+                global_warning = warning,
                 faults = %s.faults,
                 obstacle_m = s.latest.and_then(|l| l.obstacle).map(|o| o.distance),
                 "decision changed"
             );
         }
         s.command = decision.command;
-        let r = self.tx.send_command(&decision.command_msg(danger));
+        let r = self.tx.send_command(&decision.command_msg(warning));
         if r.is_ok() && decision.command == Command::Stop && s.report.first_stop_at.is_none() {
             s.report.first_stop_at = Some(self.clock.now());
             s.report.first_stop_snapshot_at = s.latest.map(|l| l.taken_at);
@@ -404,7 +407,7 @@ impl<B: CanBus> ControlThread<B> {
             overruns = i.evolution.overruns.load(Ordering::Relaxed),
             snapshots_dropped = i.evolution.snapshots_dropped.load(Ordering::Relaxed),
             global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
-            danger = latest.map_or(f64::NAN, |l| l.danger),
+            global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
             perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
             obstacle_m = latest.and_then(|l| l.obstacle).map(|o| o.distance),
             decision = %s.command,
@@ -432,8 +435,8 @@ impl<B: CanBus> ControlThread<B> {
         let decision = self.decider.shutdown();
         tracing::info!(command = %decision.command, "shutting down: last command and SHUTDOWN status");
         self.notifier.stopping("SHUTDOWN");
-        let danger = s.latest.map_or(f64::NAN, |l| l.danger);
-        let r = self.tx.send_command(&decision.command_msg(danger));
+        let warning = s.latest.map_or(f64::NAN, |l| l.global_warning);
+        let r = self.tx.send_command(&decision.command_msg(warning));
         self.sent(s, r, "FLYD_Command");
         s.report.commands_sent += 1;
         s.report.last_command = Some(decision.command);
