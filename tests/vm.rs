@@ -228,6 +228,17 @@ fn flyd_scenario(name: &str) -> Scenario {
         .timeout(Duration::from_secs(300))
 }
 
+/// Boots a flyd scenario, one at a time: flyd's timing (stale cameras, stereo pairing, the
+/// bus period) suffers when two emulated guests share this machine's two cores, while the
+/// smoke scenarios may run beside one.
+fn run_flyd(scenario: Scenario) -> FlydRun {
+    static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _turn = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    FlydRun::new(scenario.run())
+}
+
 /// What a flyd scenario brought back, parsed.
 struct FlydRun {
     run: Run,
@@ -416,7 +427,7 @@ fn label_counts(frames: &[&Frame], signal: &str) -> String {
 
 fn pedestrian_run() -> &'static FlydRun {
     static RUN: OnceLock<FlydRun> = OnceLock::new();
-    RUN.get_or_init(|| FlydRun::new(flyd_scenario("flyd_pedestrian").run()))
+    RUN.get_or_init(|| run_flyd(flyd_scenario("flyd_pedestrian")))
 }
 
 /// The rig file the guest's flyd loads is the mock rig the feeder renders through.
@@ -579,7 +590,7 @@ fn tail(text: &str, lines: usize) -> String {
 
 #[test]
 fn flyd_never_stops_on_an_empty_road_and_reports_running() {
-    let r = FlydRun::new(flyd_scenario("flyd_empty_road").run());
+    let r = run_flyd(flyd_scenario("flyd_empty_road"));
     let bus = r.check_bus();
     assert_eq!(r.exit_code(), 0);
     let stops: Vec<&Frame> = r
@@ -626,7 +637,7 @@ fn flyd_never_stops_on_an_empty_road_and_reports_running() {
 
 #[test]
 fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
-    let r = FlydRun::new(flyd_scenario("flyd_camera_stops").run());
+    let r = run_flyd(flyd_scenario("flyd_camera_stops"));
     let bus = r.check_bus();
     assert_eq!(r.exit_code(), 0);
     let rows = &r.timeline;
@@ -723,7 +734,7 @@ fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
 
 #[test]
 fn flyd_survives_vcan_down_and_up_and_sends_again() {
-    let r = FlydRun::new(flyd_scenario("flyd_can_down").run());
+    let r = run_flyd(flyd_scenario("flyd_can_down"));
     let (bus, gaps) = r.check_bus_with_gaps(1.0);
     assert_eq!(
         r.exit_code(),
@@ -790,7 +801,7 @@ fn flyd_survives_vcan_down_and_up_and_sends_again() {
 
 #[test]
 fn flyd_names_a_camera_with_the_wrong_format_and_raises_a_fault() {
-    let r = FlydRun::new(flyd_scenario("flyd_bad_format").run());
+    let r = run_flyd(flyd_scenario("flyd_bad_format"));
     let bus = r.check_bus();
     assert_eq!(
         r.exit_code(),

@@ -20,7 +20,7 @@ ip link set "$FLYD_CAN" up
 if ! kill -0 "$CANDUMP" 2>/dev/null; then
     echo "candump exited when $FLYD_CAN went down; restarting it"
     _before="$(vm_can_receivers "$FLYD_CAN")"
-    candump -L "$FLYD_CAN" >>"$RESULTS/candump.log" &
+    candump -r 4194304 -L "$FLYD_CAN" >>"$RESULTS/candump.log" &
     CANDUMP=$!
     vm_wait_for 10 vm_can_receivers_above "$FLYD_CAN" "$_before"
 fi
