@@ -8,7 +8,11 @@
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal, ValueDescription, ValueType};
+#[path = "common/dbc_signals.rs"]
+mod dbc_signals;
+
+use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
+use dbc_signals::{raw_value, value_table};
 use flyd::can::crc::e2e_crc;
 use flyd::can::messages::{
     AliveCounter, CanMessage, Command, CommandMsg, CommandReason, FaultBits, ObstacleMsg, State,
@@ -55,38 +59,6 @@ fn numeric(v: &can_dbc::NumericValue) -> f64 {
 
 /// The raw value of `sig` in `data`, extracted by the DBC's definition of an Intel signal:
 /// bits `start_bit .. start_bit + size` of the frame read as a little-endian integer.
-fn raw_value(sig: &Signal, data: &[u8; 8]) -> i64 {
-    assert_eq!(
-        sig.byte_order,
-        ByteOrder::LittleEndian,
-        "{}: the contract is Intel only",
-        sig.name
-    );
-    assert!(
-        sig.size >= 1 && sig.start_bit + sig.size <= 64,
-        "{}: outside 8 bytes",
-        sig.name
-    );
-    let word = u64::from_le_bytes(*data);
-    let mask = if sig.size == 64 {
-        u64::MAX
-    } else {
-        (1u64 << sig.size) - 1
-    };
-    let raw = (word >> sig.start_bit) & mask;
-    match sig.value_type {
-        ValueType::Unsigned => raw as i64,
-        ValueType::Signed => {
-            let sign = 1u64 << (sig.size - 1);
-            if raw & sign != 0 {
-                (raw | !mask) as i64
-            } else {
-                raw as i64
-            }
-        }
-    }
-}
-
 fn physical(sig: &Signal, data: &[u8; 8]) -> f64 {
     raw_value(sig, data) as f64 * sig.factor + sig.offset
 }
@@ -98,25 +70,6 @@ fn value_of(dbc: &Dbc, msg: &Message, signal: &str, label: &str) -> i64 {
         .find(|(_, l)| l == label)
         .map(|(v, _)| *v)
         .unwrap_or_else(|| panic!("{}.{signal}: no value named {label} in the DBC", msg.name))
-}
-
-fn value_table(dbc: &Dbc, msg: &Message, signal: &str) -> Vec<(i64, String)> {
-    dbc.value_descriptions
-        .iter()
-        .find_map(|vd| match vd {
-            ValueDescription::Signal {
-                message_id,
-                name,
-                value_descriptions,
-            } if *message_id == msg.id && name == signal => Some(
-                value_descriptions
-                    .iter()
-                    .map(|d| (d.id, d.description.clone()))
-                    .collect(),
-            ),
-            _ => None,
-        })
-        .unwrap_or_default()
 }
 
 fn data_id(dbc: &Dbc, msg: &Message) -> u16 {

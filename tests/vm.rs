@@ -21,6 +21,8 @@ mod pattern;
 
 #[path = "vm/can_log.rs"]
 mod can_log;
+#[path = "common/dbc_signals.rs"]
+mod dbc_signals;
 
 // The feeder's RGB -> YUYV conversion, to check on the host what the guest's cameras delivered.
 #[path = "vm/guest/src/feeder/yuyv.rs"]

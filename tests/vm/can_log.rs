@@ -3,7 +3,8 @@
 
 use std::collections::BTreeMap;
 
-use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal, ValueDescription, ValueType};
+use crate::dbc_signals::{raw_value, value_table};
+use can_dbc::{AttributeValue, Dbc, Message};
 use flyd::can::crc::e2e_crc;
 
 /// One frame of the log, decoded.
@@ -74,26 +75,6 @@ impl Decoder {
         attr_u64(self.dbc.message_attribute(msg.id, "GenMsgCycleTime"))
     }
 
-    fn value_table(&self, msg: &Message, signal: &str) -> Vec<(i64, String)> {
-        self.dbc
-            .value_descriptions
-            .iter()
-            .find_map(|vd| match vd {
-                ValueDescription::Signal {
-                    message_id,
-                    name,
-                    value_descriptions,
-                } if *message_id == msg.id && name == signal => Some(
-                    value_descriptions
-                        .iter()
-                        .map(|d| (d.id, d.description.clone()))
-                        .collect(),
-                ),
-                _ => None,
-            })
-            .unwrap_or_default()
-    }
-
     /// Every line of a `candump -L` log: `(SECONDS) IFACE ID#DATA`. Panics on a line that is not
     /// one, or on an ID the DBC does not define (flyd sends nothing else on the bus).
     pub fn decode_log(&self, log: &str) -> Vec<Frame> {
@@ -137,8 +118,7 @@ impl Decoder {
         for sig in &msg.signals {
             let raw = raw_value(sig, &data);
             values.insert(sig.name.clone(), raw as f64 * sig.factor + sig.offset);
-            if let Some((_, l)) = self
-                .value_table(msg, &sig.name)
+            if let Some((_, l)) = value_table(&self.dbc, msg, &sig.name)
                 .into_iter()
                 .find(|(v, _)| *v == raw)
             {
@@ -173,22 +153,5 @@ fn attr_u64(value: Option<&AttributeValue>) -> u64 {
         Some(AttributeValue::Int(v)) => u64::try_from(*v).expect("non-negative"),
         Some(AttributeValue::Double(v)) if v.fract() == 0.0 && *v >= 0.0 => *v as u64,
         other => panic!("expected an integer attribute, got {other:?}"),
-    }
-}
-
-/// The raw value of an Intel signal: bits `start_bit .. start_bit + size`, little-endian.
-fn raw_value(sig: &Signal, data: &[u8; 8]) -> i64 {
-    assert_eq!(sig.byte_order, ByteOrder::LittleEndian, "{}", sig.name);
-    let word = u64::from_le_bytes(*data);
-    let mask = if sig.size == 64 {
-        u64::MAX
-    } else {
-        (1u64 << sig.size) - 1
-    };
-    let raw = (word >> sig.start_bit) & mask;
-    match sig.value_type {
-        ValueType::Unsigned => raw as i64,
-        ValueType::Signed if raw & (1u64 << (sig.size - 1)) != 0 => (raw | !mask) as i64,
-        ValueType::Signed => raw as i64,
     }
 }
