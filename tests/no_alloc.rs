@@ -58,8 +58,9 @@ fn generations_do_not_allocate() {
     let mut engine = Engine::new(mock.rig(), params).expect("engine");
     engine.step(&frames[0]).expect("first generation");
     COUNTING.store(true, Ordering::SeqCst);
+    let mut probes = 0;
     for g in 0..30 {
-        engine.step(&frames[(g / 3) % 2]).expect("step");
+        probes += engine.step(&frames[(g / 3) % 2]).expect("step").probes;
     }
     COUNTING.store(false, Ordering::SeqCst);
     assert_eq!(
@@ -67,4 +68,5 @@ fn generations_do_not_allocate() {
         0,
         "Engine::step allocated"
     );
+    assert!(probes > 0, "the depth probes of guided immigrants did not run");
 }

@@ -28,6 +28,7 @@ use super::params::{EngineParams, RoadRoi};
 use super::projector::Projector;
 use super::sharing::Grid;
 use crate::frame::{BPP, PreparedImage, StereoFrame};
+use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
 /// scale of the paper's figures (hw-mock: ~0.05 on an empty road, ~3-10 with a pedestrian 4 m
@@ -80,23 +81,34 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// Evaluates flies `from..` of `pop`: projections, sharing cells (of `grid`) and `raw_fitness`.
+    /// Gradient byte of the left image at the pixel nearest to `(u, v)` (0 outside it).
+    #[inline]
+    pub(crate) fn left_gradient(&self, u: f32, v: f32) -> u8 {
+        let (w, h) = (self.left.width() as f32, self.left.height() as f32);
+        if u >= -0.5 && u < w - 0.5 && v >= -0.5 && v < h - 0.5 {
+            self.left.gradient((u + 0.5) as u32, (v + 0.5) as u32)
+        } else {
+            0
+        }
+    }
+
+    /// Evaluates flies `range` of `pop`: projections, sharing cells (of `grid`) and `raw_fitness`.
     pub(crate) fn evaluate(
         &self,
         left: &Projector,
         right: &Projector,
         pop: &mut Population,
-        from: usize,
+        range: Range<usize>,
         grid: &Grid,
     ) {
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, from, grid),
-            (1, _) => self.evaluate_with::<16, 1, 3>(left, right, pop, from, grid),
-            (2, 1) => self.evaluate_with::<32, 2, 1>(left, right, pop, from, grid),
-            (2, _) => self.evaluate_with::<32, 2, 3>(left, right, pop, from, grid),
-            (_, 1) => self.evaluate_with::<32, 3, 1>(left, right, pop, from, grid),
-            (_, _) => self.evaluate_with::<32, 3, 3>(left, right, pop, from, grid),
+            (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, range, grid),
+            (1, _) => self.evaluate_with::<16, 1, 3>(left, right, pop, range, grid),
+            (2, 1) => self.evaluate_with::<32, 2, 1>(left, right, pop, range, grid),
+            (2, _) => self.evaluate_with::<32, 2, 3>(left, right, pop, range, grid),
+            (_, 1) => self.evaluate_with::<32, 3, 1>(left, right, pop, range, grid),
+            (_, _) => self.evaluate_with::<32, 3, 3>(left, right, pop, range, grid),
         }
     }
 
@@ -106,7 +118,7 @@ impl<'a> Kernel<'a> {
         left: &Projector,
         right: &Projector,
         pop: &mut Population,
-        from: usize,
+        range: Range<usize>,
         grid: &Grid,
     ) {
         let mask = &const { mask::<W>(R, C) };
@@ -115,7 +127,7 @@ impl<'a> Kernel<'a> {
         let r = R as isize;
         let rows = 2 * R + 1;
         let row_step = self.row_step;
-        pop.project(left, right, from);
+        pop.project(left, right, range.clone());
         let roi = self.roi.map(|roi| {
             (
                 roi.min_height as f32,
@@ -129,7 +141,7 @@ impl<'a> Kernel<'a> {
         let roi = roi.unwrap_or((f32::MIN, f32::MAX, f32::MAX, 1.0));
         let (min_h, max_h, max_z, penalty) = roi;
         // Re-sliced to one length so the compiler drops the bounds checks in the loop.
-        let len = pop.len().saturating_sub(from);
+        let (from, len) = (range.start, range.len());
         let (ul, vl) = (&pop.u_left[from..][..len], &pop.v_left[from..][..len]);
         let (ur, vr) = (&pop.u_right[from..][..len], &pop.v_right[from..][..len]);
         let (ys, zs) = (&pop.y[from..][..len], &pop.z[from..][..len]);

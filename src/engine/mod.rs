@@ -14,9 +14,14 @@
 //! 1. **Selection** (elitist, deterministic): the best `survival_rate` of the flies by shared
 //!    fitness are kept, found in O(N) with a selection (not a sort).
 //! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
-//!    drawn uniformly (l ~ U[0,1]), then Gaussian mutation of each coordinate with probability
-//!    `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last `immigration_rate` of the
-//!    population are immigrants drawn like the initial flies.
+//!    (l ~ U[0,1]; the second parent from the first one's sharing cell with probability
+//!    `local_mating`, from all survivors otherwise), then Gaussian mutation of each coordinate
+//!    with probability `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last
+//!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
+//!    that `guided_immigration` of them go where the left image changed since the previous
+//!    frame ([`change`]): each takes the strongest gradient of a few points of a changed block
+//!    and keeps the fittest of `immigrant_probes` depths along that ray, evaluated on the
+//!    current frame.
 //! 3. **Evaluation** ([`fitness`]): `F = g_L g_R / (SSD + floor)` at the two projections.
 //! 4. **Road region of interest** (paper 5.1): outside it, F is multiplied by `roi.penalty`.
 //! 5. **Sharing** ([`sharing`]): F is divided by `n^sharing_exponent`, n being the number of flies
@@ -52,6 +57,7 @@ use projector::Projector;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
+use std::ops::Range;
 
 /// Why an engine cannot be built or run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -133,17 +139,17 @@ impl Population {
         self.cell[to] = self.cell[from];
     }
 
-    /// Projects flies `from..` into both images (NaN where a fly is outside one).
-    fn project(&mut self, left: &Projector, right: &Projector, from: usize) {
-        let (x, y, z) = (&self.x[from..], &self.y[from..], &self.z[from..]);
-        left.project_batch(x, y, z, &mut self.u_left[from..], &mut self.v_left[from..]);
-        right.project_batch(
+    /// Projects flies `r` into both images (NaN where a fly is outside one).
+    fn project(&mut self, left: &Projector, right: &Projector, r: Range<usize>) {
+        let (x, y, z) = (&self.x[r.clone()], &self.y[r.clone()], &self.z[r.clone()]);
+        left.project_batch(
             x,
             y,
             z,
-            &mut self.u_right[from..],
-            &mut self.v_right[from..],
+            &mut self.u_left[r.clone()],
+            &mut self.v_left[r.clone()],
         );
+        right.project_batch(x, y, z, &mut self.u_right[r.clone()], &mut self.v_right[r]);
     }
 
     /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).
@@ -166,6 +172,8 @@ pub struct GenerationStats {
     pub danger: f64,
     /// Flies evaluated in this generation.
     pub evaluated: usize,
+    /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes`).
+    pub probes: usize,
     /// Flies whose projection falls inside both images.
     pub visible: usize,
     /// Whether this generation saw a new frame.
@@ -189,6 +197,9 @@ struct Sampler {
     c: [f32; 3],
 }
 
+/// Points of a changed block looked at to place one guided immigrant.
+const PIXEL_CANDIDATES: usize = 8;
+
 /// Attempts to draw a fly visible in both images before giving up on that slot.
 const SAMPLE_ATTEMPTS: usize = 16;
 
@@ -204,6 +215,12 @@ pub struct Engine {
     change: change::ChangeMap,
     /// Survivor flags of the current selection.
     chosen: Vec<bool>,
+    /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
+    probe: Population,
+    /// Population slot of each probed immigrant.
+    probe_slot: Vec<u32>,
+    /// Probes evaluated in the latest generation.
+    probed: usize,
     sharing: sharing::Grid,
     rng: Xoshiro256PlusPlus,
     frame_size: (u32, u32, u32, u32),
@@ -244,6 +261,9 @@ impl Engine {
                 n,
             ),
             chosen: vec![false; n],
+            probe: Population::with_len(params.immigrants() * params.immigrant_probes as usize),
+            probe_slot: vec![0; params.immigrants()],
+            probed: 0,
             frame_size: (
                 rig.left.width(),
                 rig.left.height(),
@@ -287,20 +307,29 @@ impl Engine {
     /// Runs one generation against `frame` (see the module docs for the steps).
     pub fn step(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
         self.check_frame(frame)?;
-        if self.frame_id.is_some() {
-            self.reproduce();
-        }
-
         let new_frame = self.frame_id != Some(frame.id);
+        if new_frame {
+            // Before reproduction, so this generation's immigrants already go where it changed.
+            self.change.update(frame.left.block_means());
+        }
+        let kernel = Kernel::new(frame, &self.params);
+        if self.frame_id.is_some() {
+            self.reproduce(&kernel);
+        }
         if new_frame {
             self.unevaluated_from = 0;
             self.frame_id = Some(frame.id);
-            self.change.update(frame.left.block_means());
         }
         let from = self.unevaluated_from;
-        let kernel = Kernel::new(frame, &self.params);
-        kernel.evaluate(&self.left, &self.right, &mut self.pop, from, &self.sharing);
-        self.unevaluated_from = self.pop.len();
+        let n = self.pop.len();
+        kernel.evaluate(
+            &self.left,
+            &self.right,
+            &mut self.pop,
+            from..n,
+            &self.sharing,
+        );
+        self.unevaluated_from = n;
         self.sharing.apply(&mut self.pop);
         let (global_warning, danger, visible) = self.warnings();
 
@@ -308,7 +337,8 @@ impl Engine {
             generation: self.stats.generation + 1,
             global_warning,
             danger,
-            evaluated: self.pop.len() - from,
+            evaluated: n - from,
+            probes: self.probed,
             visible,
             new_frame,
         };
@@ -366,7 +396,7 @@ impl Engine {
 
     /// Selection and genetic operators: survivors move to `0..keep` (in place), offspring fill
     /// `keep..`, immigrants last.
-    fn reproduce(&mut self) {
+    fn reproduce(&mut self, kernel: &Kernel) {
         let n = self.pop.len();
         let keep = self.params.survivors();
         let immigrants_from = n - self.params.immigrants();
@@ -420,18 +450,44 @@ impl Engine {
             self.pop.y[i] = c[1];
             self.pop.z[i] = c[2];
         }
-        self.immigrate(immigrants_from);
+        self.immigrate(immigrants_from, kernel);
         self.unevaluated_from = keep;
     }
 
     /// Replaces flies `from..` with new random flies. Candidates are drawn in bulk and checked
     /// with the vectorised projection; only the few outside an image are drawn again one by one.
-    fn immigrate(&mut self, from: usize) {
+    /// Guided immigrants (drawn where the image changed) probe `immigrant_probes` depths along
+    /// their ray against the current frame and keep the fittest.
+    fn immigrate(&mut self, from: usize, kernel: &Kernel) {
         let guided = (self.params.guided_immigration * 4_294_967_296.0).min(u32::MAX as f64) as u32;
+        let k = self.params.immigrant_probes as usize;
+        self.probed = 0;
+        let mut probing = 0;
         for i in from..self.pop.len() {
             let p = if self.change.total > 0.0 && self.rng.next_u32() < guided {
                 let b = self.change.pick(unit_f32(self.rng.next_u32()));
-                self.sampler.candidate_in_block(&mut self.rng, b)
+                let ray = self.strongest_in_block(b, kernel);
+                match ray.and_then(|(xn, yn)| Some((xn, yn, self.sampler.ray_range(xn, yn)?))) {
+                    Some((xn, yn, inv)) if k > 1 => {
+                        let base = probing * k;
+                        for s in 0..k {
+                            // One probe per stratum of the ray's inverse-depth range.
+                            let t = (s as f32 + unit_f32(self.rng.next_u32())) / k as f32;
+                            let p = self.sampler.at(xn, yn, 1.0 / lerp(inv, t));
+                            self.probe.x[base + s] = p[0];
+                            self.probe.y[base + s] = p[1];
+                            self.probe.z[base + s] = p[2];
+                        }
+                        self.probe_slot[probing] = i as u32;
+                        probing += 1;
+                        self.sampler.at(xn, yn, 1.0 / lerp(inv, 0.5))
+                    }
+                    Some((xn, yn, inv)) => {
+                        self.sampler
+                            .at(xn, yn, 1.0 / lerp(inv, unit_f32(self.rng.next_u32())))
+                    }
+                    None => self.sampler.candidate_in_block(&mut self.rng, b),
+                }
             } else {
                 self.sampler.candidate(&mut self.rng)
             };
@@ -439,8 +495,32 @@ impl Engine {
             self.pop.y[i] = p[1];
             self.pop.z[i] = p[2];
         }
-        self.pop.project(&self.left, &self.right, from);
-        for i in from..self.pop.len() {
+        if probing > 0 {
+            self.probed = probing * k;
+            kernel.evaluate(
+                &self.left,
+                &self.right,
+                &mut self.probe,
+                0..probing * k,
+                &self.sharing,
+            );
+            for (j, &slot) in self.probe_slot[..probing].iter().enumerate() {
+                let fit = &self.probe.raw_fitness[j * k..(j + 1) * k];
+                // First of the fittest: deterministic, and the middle probe stays if all fail.
+                let (best, &f) = fit.iter().enumerate().fold((0, &0.0f32), |acc, (s, v)| {
+                    if *v > *acc.1 { (s, v) } else { acc }
+                });
+                if f > 0.0 {
+                    let (q, i) = (j * k + best, slot as usize);
+                    self.pop.x[i] = self.probe.x[q];
+                    self.pop.y[i] = self.probe.y[q];
+                    self.pop.z[i] = self.probe.z[q];
+                }
+            }
+        }
+        let n = self.pop.len();
+        self.pop.project(&self.left, &self.right, from..n);
+        for i in from..n {
             let p = [self.pop.x[i], self.pop.y[i], self.pop.z[i]];
             if self.pop.u_left[i].is_nan()
                 || self.pop.u_right[i].is_nan()
@@ -452,6 +532,25 @@ impl Engine {
                 self.pop.z[i] = p[2];
             }
         }
+    }
+
+    /// The left-image ray (normalised coordinates) through the strongest gradient of
+    /// `PIXEL_CANDIDATES` random points of block `b`: the fitness is proportional to the
+    /// gradients, so an obstacle is found first where it has contrast.
+    fn strongest_in_block(&mut self, b: usize, kernel: &Kernel) -> Option<(f32, f32)> {
+        let mut best: Option<(f32, f32, u8)> = None;
+        for _ in 0..PIXEL_CANDIDATES {
+            let (xn, yn) = self.sampler.in_block(&mut self.rng, b)?;
+            let p = self.sampler.at(xn, yn, 1.0);
+            let g = self
+                .left
+                .project(p[0], p[1], p[2])
+                .map_or(0, |(u, v)| kernel.left_gradient(u, v));
+            if best.is_none_or(|(_, _, bg)| g > bg) {
+                best = Some((xn, yn, g));
+            }
+        }
+        best.map(|(xn, yn, _)| (xn, yn))
     }
 
     /// A new random fly (see the module docs); the flag says whether both cameras see it.
@@ -519,6 +618,11 @@ impl Sampler {
         self.heights.is_none_or(|(lo, hi)| p[1] >= lo && p[1] <= hi)
     }
 
+    #[inline]
+    fn point<R: Rng>(&self, xn: f32, yn: f32, rng: &mut R) -> [f32; 3] {
+        self.at(xn, yn, 1.0 / lerp(self.inv_depth, unit_f32(rng.next_u32())))
+    }
+
     /// A point in left-image block `b` (uniform over its normalised bounds), uniform in inverse
     /// depth.
     #[inline]
@@ -532,9 +636,42 @@ impl Sampler {
         self.point(xn, yn, rng)
     }
 
+    /// A point of left-image block `b`, uniform over its normalised bounds.
     #[inline]
-    fn point<R: Rng>(&self, xn: f32, yn: f32, rng: &mut R) -> [f32; 3] {
-        let d = 1.0 / lerp(self.inv_depth, unit_f32(rng.next_u32()));
+    fn in_block<R: Rng>(&self, rng: &mut R, b: usize) -> Option<(f32, f32)> {
+        let &[x0, x1, y0, y1] = self.blocks.get(b)?;
+        let r = rng.next_u64();
+        Some((
+            lerp((x0, x1), unit_f32(r as u32)),
+            lerp((y0, y1), unit_f32((r >> 32) as u32)),
+        ))
+    }
+
+    /// The inverse-depth range of the left camera's ray through normalised `(xn, yn)` inside
+    /// the search range and the road region of interest; `None` when no point qualifies.
+    #[inline]
+    fn ray_range(&self, xn: f32, yn: f32) -> Option<(f32, f32)> {
+        let (mut near, mut far) = (1.0 / self.inv_depth.1, 1.0 / self.inv_depth.0);
+        if let Some((lo, hi)) = self.heights {
+            // Height along the ray: y(d) = c_y + d * k.
+            let k = self.m[3] * xn + self.m[4] * yn + self.m[5];
+            let c = self.c[1];
+            if k.abs() < 1e-6 {
+                if c < lo || c > hi {
+                    return None;
+                }
+            } else {
+                let (a, b) = ((lo - c) / k, (hi - c) / k);
+                near = near.max(a.min(b));
+                far = far.min(a.max(b));
+            }
+        }
+        (near < far).then(|| (1.0 / far, 1.0 / near))
+    }
+
+    /// The point at depth `d` along the left camera's ray through normalised `(xn, yn)`.
+    #[inline]
+    fn at(&self, xn: f32, yn: f32, d: f32) -> [f32; 3] {
         let cam = [xn * d, yn * d, d];
         let m = &self.m;
         [

@@ -171,7 +171,8 @@ fn new_frame_reevaluates_every_fly() {
     // The stored fitness is the one a fresh engine computes on frame b for the same flies.
     let kernel = Kernel::new(&b, e.params());
     let mut fresh = e.population().clone();
-    kernel.evaluate(&e.left, &e.right, &mut fresh, 0, &e.sharing);
+    let n = fresh.len();
+    kernel.evaluate(&e.left, &e.right, &mut fresh, 0..n, &e.sharing);
     assert_eq!(fresh.raw_fitness, e.population().raw_fitness);
 }
 
@@ -412,4 +413,69 @@ fn a_gain_difference_between_the_cameras_changes_little() {
     let ((a, on_a), (b, on_b)) = (run(&frame), run(&bright));
     assert!(on_a >= 180 && on_b >= 180, "{on_a} {on_b}");
     assert!((a.danger / b.danger - 1.0).abs() < 0.25, "{a:?} {b:?}");
+}
+
+#[test]
+fn probing_immigrants_land_at_the_depth_that_matches() {
+    // A wall at 8 m, then at 4 m: the image changes everywhere, so immigrants are guided, and
+    // with depth probes they should find the new wall far more often than random immigrants.
+    let rig = rig();
+    let (a, b) = (wall_frame(&rig, 8.0, 3, 0), wall_frame(&rig, 4.0, 3, 1));
+    let near_wall = |probes: u32| {
+        let mut p = params(5000, 5);
+        p.immigrant_probes = probes;
+        p.guided_immigration = 1.0;
+        let mut e = Engine::new(&rig, p).expect("engine");
+        e.step(&a).expect("step");
+        e.step(&a).expect("step");
+        let s = e.step(&b).expect("step");
+        let pop = e.population();
+        let n = pop.len();
+        let imm = e.params().immigrants();
+        let hits = (n - imm..n)
+            .filter(|&i| (pop.z[i] - 4.0).abs() < 0.1 && pop.raw_fitness[i] > 0.0)
+            .count();
+        (hits, s.probes)
+    };
+    let (plain, plain_probes) = near_wall(1);
+    let (probed, probes) = near_wall(16);
+    assert_eq!(plain_probes, 0, "one probe is the paper's immigrant");
+    assert_eq!(
+        probes,
+        16 * params(5000, 5).immigrants(),
+        "every guided immigrant probed"
+    );
+    assert!(
+        probed >= 3 * plain.max(1) && probed >= 20,
+        "immigrants within 10 cm of the wall: {probed} with 16 probes vs {plain} without"
+    );
+}
+
+#[test]
+fn probe_rays_stay_inside_the_road_region_of_interest() {
+    let rig = rig();
+    let mut p = params(500, 2);
+    p.roi = Some(RoadRoi::default());
+    let e = Engine::new(&rig, p).expect("engine");
+    let roi = RoadRoi::default();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let mut checked = 0;
+    for b in 0..e.sampler.blocks.len() {
+        let Some((xn, yn)) = e.sampler.in_block(&mut rng, b) else {
+            continue;
+        };
+        let Some(inv) = e.sampler.ray_range(xn, yn) else {
+            continue;
+        };
+        for t in [0.0, 0.5, 1.0] {
+            let q = e.sampler.at(xn, yn, 1.0 / lerp(inv, t));
+            assert!(
+                q[1] >= roi.min_height as f32 - 1e-3 && q[1] <= roi.max_height as f32 + 1e-3,
+                "block {b}: height {} outside the region of interest",
+                q[1]
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 100, "only {checked} probe points checked");
 }
