@@ -123,6 +123,10 @@ pub enum CalibrationSource {
 pub struct EvolutionConfig {
     /// One generation per period; `None` runs generations back to back.
     pub generation_period: Option<Duration>,
+    /// Generations run back to back, without waiting for the period, when a new pair shows
+    /// a change (the engine's change map is not empty): the population converges on what
+    /// appeared within the frame that showed it instead of over several periods. 1 = none.
+    pub burst_generations: u32,
     /// A generation longer than this is an overrun (fault EVOLUTION_OVERRUN).
     pub max_generation_time: Duration,
     /// Generations before the danger is trusted: the initial random population gives chance
@@ -145,6 +149,7 @@ impl Default for EvolutionConfig {
     fn default() -> Self {
         Self {
             generation_period: Some(Duration::from_millis(10)),
+            burst_generations: 24,
             max_generation_time: Duration::from_millis(50),
             warmup_generations: 30,
             snapshot_queue: 64,
@@ -495,6 +500,7 @@ impl Default for RawDecision {
 struct RawEvolution {
     /// 0 = as fast as possible.
     generation_period_ms: f64,
+    burst_generations: u32,
     max_generation_ms: f64,
     warmup_generations: u64,
     snapshot_queue: usize,
@@ -509,6 +515,7 @@ impl Default for RawEvolution {
         let d = EvolutionConfig::default();
         Self {
             generation_period_ms: d.generation_period.map_or(0.0, |p| p.as_secs_f64() * 1e3),
+            burst_generations: d.burst_generations,
             max_generation_ms: d.max_generation_time.as_secs_f64() * 1e3,
             warmup_generations: d.warmup_generations,
             snapshot_queue: d.snapshot_queue,
@@ -761,6 +768,9 @@ impl RawEvolution {
             )?)
         };
         let max_generation_time = millis("evolution.max_generation_ms", self.max_generation_ms)?;
+        if !(1..=1000).contains(&self.burst_generations) {
+            return bad("evolution.burst_generations", "must be within 1..=1000");
+        }
         if !(1..=65_536).contains(&self.snapshot_queue) {
             return bad("evolution.snapshot_queue", "must be within 1..=65536");
         }
@@ -784,6 +794,7 @@ impl RawEvolution {
         }
         Ok(EvolutionConfig {
             generation_period,
+            burst_generations: self.burst_generations,
             max_generation_time,
             warmup_generations: self.warmup_generations,
             snapshot_queue: self.snapshot_queue,
@@ -999,6 +1010,11 @@ interface = "can0"
             &with("cameras", "stale_frames = 0"),
             "cameras.stale_frames",
             "at least 1",
+        );
+        check_err(
+            &with("evolution", "burst_generations = 0"),
+            "evolution.burst_generations",
+            "1..=1000",
         );
         check_err(
             &with("evolution", "max_generation_ms = -1"),

@@ -204,6 +204,12 @@ impl Decider {
         self.command
     }
 
+    /// Whether a healthy warning `w` asks for more than the current command (an escalation,
+    /// which the control thread sends at once instead of at the next period).
+    pub fn escalates(&self, w: f64) -> bool {
+        !self.shut_down && w.is_finite() && w >= 0.0 && self.level(w) > self.command
+    }
+
     /// Feeds one snapshot taken at monotonic time `now`. Times must not go backwards; if they
     /// do, elapsed time counts as zero (holds get longer, never shorter).
     pub fn update(&mut self, input: DecisionInput, now: Duration) -> Decision {
@@ -404,6 +410,29 @@ mod tests {
         assert_eq!(d[3].reason, CommandReason::Perception);
         assert!(d[3].changed);
         assert_eq!(d[3].requested_decel, 0.0);
+    }
+
+    #[test]
+    fn escalates_only_above_the_current_command() {
+        let mut d = Decider::new(cfg()).expect("valid");
+        let ms = Duration::from_millis;
+        // Start-up SLOW: only a STOP-level warning escalates.
+        assert!(!d.escalates(0.4) && d.escalates(0.6));
+        for t in [0, 100, 200] {
+            d.update(DecisionInput::healthy(0.0), ms(t));
+        }
+        assert_eq!(d.command(), Clear);
+        assert!(!d.escalates(0.29), "below SLOW");
+        assert!(d.escalates(0.3) && d.escalates(5.0));
+        assert!(
+            !d.escalates(f64::NAN) && !d.escalates(-1.0),
+            "faults are not escalations"
+        );
+        d.update(DecisionInput::healthy(0.7), ms(300));
+        assert_eq!(d.command(), Stop);
+        assert!(!d.escalates(9.0), "nothing above STOP");
+        d.shutdown();
+        assert!(!d.escalates(9.0), "latched after shutdown");
     }
 
     #[test]

@@ -68,5 +68,8 @@ fn generations_do_not_allocate() {
         0,
         "Engine::step allocated"
     );
-    assert!(probes > 0, "the depth probes of guided immigrants did not run");
+    assert!(
+        probes > 0,
+        "the depth probes of guided immigrants did not run"
+    );
 }

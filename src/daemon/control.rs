@@ -1,10 +1,12 @@
 //! The control thread: snapshots in, CAN frames out, at fixed periods.
 //!
-//! Every turn (at most every 5 ms): drain the snapshot channel, evaluate the faults
-//! ([`FaultMonitor`]) at the clock's time, log fault and state transitions, and send whatever
-//! is due: `FLYD_Command` and `FLYD_Status` every 20 ms, `FLYD_Obstacle` every 100 ms by
-//! default (the [`CanConfig`] periods), whether or not anything changed. The command is decided
-//! when it is due, by the [`Decider`] fed with
+//! Every turn (when a snapshot arrives, and at most 5 ms apart): drain the snapshot channel,
+//! evaluate the faults ([`FaultMonitor`]) at the clock's time, log fault and state transitions,
+//! and send whatever is due: `FLYD_Command` and `FLYD_Status` every 20 ms, `FLYD_Obstacle`
+//! every 100 ms by default (the [`CanConfig`] periods), whether or not anything changed. A
+//! warning that escalates the command (CLEAR to SLOW, SLOW to STOP) sends `FLYD_Command` at
+//! once, between two periodic frames: a stop order does not wait for the period. The command is
+//! decided by the [`Decider`] fed with
 //!
 //! - the **highest global warning** among the snapshots received since the previous command (a
 //!   spike between two commands is not lost; releases stay conservative), or the newest
@@ -182,7 +184,10 @@ impl<B: CanBus> ControlThread<B> {
             let now = self.clock.now();
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
-            if command_slot.due(now) {
+            let escalation = s
+                .warning_since_command
+                .is_some_and(|w| self.decider.escalates(w));
+            if command_slot.due(now) || escalation {
                 self.send_command(&mut s, now);
             }
             if status_slot.due(now) {
@@ -213,7 +218,10 @@ impl<B: CanBus> ControlThread<B> {
                 .min(obstacle_slot.next());
             let wait = next.saturating_sub(self.clock.now()).min(MAX_TURN);
             if !wait.is_zero() {
-                std::thread::sleep(wait);
+                // Wakes on the next snapshot: an escalation leaves without waiting for the turn.
+                if let Ok(snapshot) = self.inputs.snapshots.recv_timeout(wait) {
+                    self.take(&mut s, snapshot);
+                }
             }
         }
         self.shut_down(&mut s);
@@ -222,31 +230,35 @@ impl<B: CanBus> ControlThread<B> {
 
     fn drain(&mut self, s: &mut Loop) {
         while let Ok(snapshot) = self.inputs.snapshots.try_recv() {
-            s.report.snapshots += 1;
-            s.gen_times.push(snapshot.generation_time);
-            s.latest = Some(snapshot);
-            s.latest_at = Some(self.clock.now());
-            if !self.notifier.is_ready() {
-                tracing::info!(
-                    generation = snapshot.generation,
-                    "ready: both cameras deliver and the first generation ran"
-                );
-                self.notifier.ready("INIT: warming up");
-            }
-            if snapshot.warming_up {
-                continue;
-            }
-            let d = snapshot.global_warning;
-            s.warning_since_command = Some(match s.warning_since_command {
-                Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
-                Some(m) => m.max(d),
-                None => d,
-            });
-            if !s.report.reached_running {
-                s.report.reached_running = true;
-                self.monitor.set_running();
-                tracing::info!(generation = snapshot.generation, "running: warm-up done");
-            }
+            self.take(s, snapshot);
+        }
+    }
+
+    fn take(&mut self, s: &mut Loop, snapshot: Snapshot) {
+        s.report.snapshots += 1;
+        s.gen_times.push(snapshot.generation_time);
+        s.latest = Some(snapshot);
+        s.latest_at = Some(self.clock.now());
+        if !self.notifier.is_ready() {
+            tracing::info!(
+                generation = snapshot.generation,
+                "ready: both cameras deliver and the first generation ran"
+            );
+            self.notifier.ready("INIT: warming up");
+        }
+        if snapshot.warming_up {
+            return;
+        }
+        let d = snapshot.global_warning;
+        s.warning_since_command = Some(match s.warning_since_command {
+            Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
+            Some(m) => m.max(d),
+            None => d,
+        });
+        if !s.report.reached_running {
+            s.report.reached_running = true;
+            self.monitor.set_running();
+            tracing::info!(generation = snapshot.generation, "running: warm-up done");
         }
     }
 

@@ -179,8 +179,13 @@ impl FrameSource for MockCamera {
         if self.next >= self.frames {
             return Err(SourceError::EndOfStream);
         }
+        // Render ahead, then deliver at the due time: the frame is stamped with its due time
+        // and handed over then, like a camera stamping the end of its readout (V4L2's
+        // TSTAMP_SRC_EOF). The time the mock spends ray-casting is a cost of the simulation,
+        // not a latency of the daemon, so it stays out of the reaction measured from the stamp.
+        let k = self.fetch(self.clock.now())?;
         let now = self.clock.now();
-        let due = self.due(self.next);
+        let due = self.due(k);
         if due > now {
             let wait = due - now;
             if wait > timeout {
@@ -189,7 +194,6 @@ impl FrameSource for MockCamera {
             }
             std::thread::sleep(wait);
         }
-        let k = self.fetch(self.clock.now())?;
         out.prepare(PixelFormat::Rgb8, &self.pixels)
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),

@@ -143,6 +143,11 @@ impl FrameReader {
         }
     }
 
+    /// Whether a frame newer than the held one is waiting (one atomic load; takes nothing).
+    pub fn pending(&self) -> bool {
+        self.output.updated()
+    }
+
     /// The held slot (`None` before the first fetch).
     pub fn slot(&self) -> Option<&Slot> {
         (self.current > 0).then(|| self.output.output_buffer())

@@ -178,6 +178,10 @@ pub struct GenerationStats {
     pub visible: usize,
     /// Whether this generation saw a new frame.
     pub new_frame: bool,
+    /// Evidence of change of the newest frame against the previous one (sum over the 16x16
+    /// blocks of the mean-luma change above the noise, decaying by half per frame); 0 when
+    /// nothing moved.
+    pub change: f32,
 }
 
 /// Left-camera sampling domain for new flies.
@@ -341,6 +345,7 @@ impl Engine {
             probes: self.probed,
             visible,
             new_frame,
+            change: self.change.total,
         };
         Ok(self.stats)
     }
