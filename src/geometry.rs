@@ -67,8 +67,13 @@ impl Distortion {
             if radial.abs() < 1e-6 {
                 return None;
             }
-            x = (xd - dx) / radial;
-            y = (yd - dy) / radial;
+            let (nx, ny) = ((xd - dx) / radial, (yd - dy) / radial);
+            let step = (nx - x).abs() + (ny - y).abs();
+            (x, y) = (nx, ny);
+            // Converged (mild distortion: ~10 iterations); the residual check below decides.
+            if step < 1e-14 {
+                break;
+            }
         }
         let (ex, ey) = self.apply(x, y);
         let err = ((ex - xd).powi(2) + (ey - yd).powi(2)).sqrt();

@@ -183,17 +183,24 @@ impl FrameSource for MockCamera {
         // and handed over then, like a camera stamping the end of its readout (V4L2's
         // TSTAMP_SRC_EOF). The time the mock spends ray-casting is a cost of the simulation,
         // not a latency of the daemon, so it stays out of the reaction measured from the stamp.
-        let k = self.fetch(self.clock.now())?;
+        // A camera called late skips to the frame due now (rendered now: it is already late).
         let now = self.clock.now();
-        let due = self.due(k);
-        if due > now {
+        let due = self.due(self.next);
+        let k = if due > now {
             let wait = due - now;
             if wait > timeout {
                 std::thread::sleep(timeout);
                 return Err(SourceError::Timeout(timeout));
             }
-            std::thread::sleep(wait);
-        }
+            let k = self.fetch(now)?;
+            let left = self.due(k).saturating_sub(self.clock.now());
+            if !left.is_zero() {
+                std::thread::sleep(left);
+            }
+            k
+        } else {
+            self.fetch(now)?
+        };
         out.prepare(PixelFormat::Rgb8, &self.pixels)
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),
