@@ -487,11 +487,12 @@ fn flyd_sends_stop_after_the_pedestrian_steps_in() {
             )
         });
     let reaction_frames = r.frames_between(t_appear, first_stop.time);
-    // Natively flyd reacts within ~2 frames at 30 fps (issue 3: median <= 50 ms). Under TCG
-    // the guest is ~10x slower, and flyd there pairs ~5 frames a second: measured 25 frames
-    // (10 fps), the bound is 40.
+    // The daemon's bound (issue 3): median <= 50 ms at 30 fps, i.e. the STOP leaves while the
+    // first or second frame showing the pedestrian is the newest. Under TCG the guest runs
+    // 10 fps and bursts of 6 generations of 1000 flies: measured 1-2 frames (4 runs); the
+    // bound is 3 frames, one frame of slack for a guest stalled by a loaded host.
     assert!(
-        reaction_frames <= 40,
+        reaction_frames <= 3,
         "first STOP {reaction_frames} camera frames after the pedestrian appeared"
     );
     let after: Vec<&&Frame> = commands
