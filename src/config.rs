@@ -149,7 +149,7 @@ impl Default for EvolutionConfig {
     fn default() -> Self {
         Self {
             generation_period: Some(Duration::from_millis(10)),
-            burst_generations: 24,
+            burst_generations: 12,
             max_generation_time: Duration::from_millis(50),
             warmup_generations: 30,
             snapshot_queue: 64,

@@ -191,7 +191,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         });
     }
     replay::write_outputs(&args.out, &engine, &left, &trace)?;
-    print_summary(&engine, 1, &mut times, &args.out)
+    print_summary(&engine, 1, &mut times, &args.out, None)
 }
 
 fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
@@ -204,6 +204,7 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
     let k = args.generations_per_frame.max(1);
     let frames = scenario.frame_count() as u64;
     let generations = args.generations.unwrap_or(frames * k);
+    let first_obstacle = scenario.first_obstacle_frame();
     let mut mock = flyd::mock::MockStereo::new(scenario, args.width, args.height)?;
     let params = EngineParams {
         flies: args.flies,
@@ -242,7 +243,22 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
         });
     }
     replay::write_outputs(&args.out, &engine, &left_rgb, &trace)?;
-    print_summary(&engine, index.wrapping_add(1), &mut times, &args.out)
+    let decision = flyd::decision::DecisionConfig::default();
+    let reaction = first_obstacle.and_then(|f| {
+        replay::Reaction::of(
+            &trace,
+            u64::from(f),
+            decision.slow_threshold,
+            decision.stop_threshold,
+        )
+    });
+    print_summary(
+        &engine,
+        index.wrapping_add(1),
+        &mut times,
+        &args.out,
+        reaction,
+    )
 }
 
 fn bench_command(args: BenchArgs) -> Result<()> {
@@ -269,6 +285,7 @@ fn print_summary(
     frames: u64,
     times: &mut [Duration],
     out: &std::path::Path,
+    reaction: Option<replay::Reaction>,
 ) -> Result<()> {
     let stats = engine.stats();
     let summary = Summary {
@@ -280,6 +297,7 @@ fn print_summary(
         seed: engine.params().seed,
         time_per_generation: Timing::of(times),
         out_dir: out.display().to_string(),
+        reaction,
     };
     println!("{}", serde_json::to_string_pretty(&summary)?);
     Ok(())

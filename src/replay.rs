@@ -86,6 +86,56 @@ pub struct Summary {
     pub seed: u64,
     pub time_per_generation: Timing,
     pub out_dir: String,
+    /// On a scenario where an obstacle appears: how fast the global warning reacted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reaction: Option<Reaction>,
+}
+
+/// How the global warning reacted to an obstacle appearing at frame `appears_at_frame`.
+/// Counts are generations from the first one that saw that frame (1 = that generation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Reaction {
+    pub appears_at_frame: u64,
+    /// The first generation that saw it.
+    pub appears_at_generation: u64,
+    /// Global warning of the generation before.
+    pub before: f64,
+    /// Global warning `SETTLE_GENERATIONS` after the first generation that saw the obstacle.
+    pub settled: f64,
+    /// Generations to reach half of `settled`.
+    pub half_settled_after: Option<u64>,
+    /// Generations to reach the default SLOW and STOP thresholds of the daemon.
+    pub slow_threshold_after: Option<u64>,
+    pub stop_threshold_after: Option<u64>,
+}
+
+/// "Settled" = the global warning this many generations after the obstacle appeared (issue 2).
+pub const SETTLE_GENERATIONS: usize = 50;
+
+impl Reaction {
+    /// The reaction in `trace` to an obstacle first shown by frame `frame`; `None` when the
+    /// trace does not run `SETTLE_GENERATIONS` past it.
+    pub fn of(trace: &[TraceRow], frame: u64, slow: f64, stop: f64) -> Option<Self> {
+        let first = trace.iter().position(|r| r.frame >= frame)?;
+        let settled = trace.get(first + SETTLE_GENERATIONS)?.stats.global_warning;
+        let after = |level: f64| {
+            trace[first..]
+                .iter()
+                .position(|r| r.stats.global_warning >= level)
+                .map(|k| k as u64 + 1)
+        };
+        Some(Self {
+            appears_at_frame: frame,
+            appears_at_generation: trace[first].stats.generation,
+            before: first
+                .checked_sub(1)
+                .map_or(f64::NAN, |b| trace[b].stats.global_warning),
+            settled,
+            half_settled_after: after(settled / 2.0),
+            slow_threshold_after: after(slow),
+            stop_threshold_after: after(stop),
+        })
+    }
 }
 
 /// One row of `trace.csv`.
@@ -234,4 +284,46 @@ pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
             path: path.display().to_string(),
             source,
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trace(warnings: &[f64], frames_from: u64) -> Vec<TraceRow> {
+        warnings
+            .iter()
+            .enumerate()
+            .map(|(g, &w)| TraceRow {
+                frame: frames_from + g as u64 / 3,
+                stats: GenerationStats {
+                    generation: g as u64 + 1,
+                    global_warning: w,
+                    ..GenerationStats::default()
+                },
+                elapsed: Duration::ZERO,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn reaction_counts_generations_from_the_first_that_saw_the_obstacle() {
+        // Frames 0..: 3 generations each; the obstacle at frame 2 = generation 7 (index 6).
+        let mut w = vec![0.05; 6];
+        w.extend([0.1, 0.6, 1.2, 2.0, 3.9, 4.0]);
+        w.extend(std::iter::repeat_n(4.0, 60));
+        let r = Reaction::of(&trace(&w, 0), 2, 0.5, 1.5).expect("long enough");
+        assert_eq!(r.appears_at_generation, 7);
+        assert_eq!(r.before, 0.05);
+        assert_eq!(r.settled, 4.0);
+        assert_eq!(r.slow_threshold_after, Some(2));
+        assert_eq!(r.stop_threshold_after, Some(4));
+        assert_eq!(r.half_settled_after, Some(4), "2.0 is half of 4.0");
+        assert!(
+            Reaction::of(&trace(&w[..30], 0), 2, 0.5, 1.5).is_none(),
+            "too short"
+        );
+        let never = Reaction::of(&trace(&[0.05; 80], 0), 2, 0.5, 1.5).expect("long enough");
+        assert_eq!(never.stop_threshold_after, None);
+    }
 }

@@ -31,7 +31,7 @@ use crate::frame::{BPP, PreparedImage, StereoFrame};
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
-/// scale of the paper's figures (hw-mock: ~0.05 on an empty road, ~3-10 with a pedestrian 4 m
+/// scale of the paper's figures (hw-mock: 0.05-0.2 on an empty road, ~6-7 with a pedestrian 4 m
 /// ahead), which also keeps it inside the CAN signal's range (0.001 resolution, up to 65.5).
 pub const FITNESS_SCALE: f32 = 0.01;
 
