@@ -217,43 +217,41 @@ impl PreparedImage {
     /// the fitness compares raw colour differences: with a 20-grey-level exposure difference the
     /// true match of a Middlebury pair has an SSD as large as many wrong ones. Normalising each
     /// image on its own removes a global gain/offset difference without either capture thread
-    /// needing the other camera's frame. Built from a 256-bin histogram: no allocation.
+    /// needing the other camera's frame. Built from exact integer sums of v and v^2 (one vectorised
+    /// pass): no allocation.
     fn normalisation(&self, format: PixelFormat, pixels: &[u8]) -> [[u8; 256]; 3] {
         let channels = format.bytes_per_pixel();
-        let mut hist = [[0u32; 256]; 3];
+        // Exact integer sums of v and v^2 per channel. 48 lanes (16 RGB pixels, 48 grey ones)
+        // keep each lane on one channel and let the compiler vectorise; lanes are u32 within a
+        // row (at most 65025 x width / 16 per lane) and folded into u64 after each row.
+        const LANES: usize = 48;
+        let (mut sum, mut sq) = ([0u64; 3], [0u64; 3]);
         let row_len = self.width * channels;
         for row in pixels.chunks_exact(row_len) {
-            match channels {
-                3 => {
-                    let [h0, h1, h2] = &mut hist;
-                    for px in row.chunks_exact(3) {
-                        h0[px[0] as usize] += 1;
-                        h1[px[1] as usize] += 1;
-                        h2[px[2] as usize] += 1;
-                    }
+            let (mut s1, mut s2) = ([0u32; LANES], [0u32; LANES]);
+            let mut chunks = row.chunks_exact(LANES);
+            for c in &mut chunks {
+                for k in 0..LANES {
+                    let v = u32::from(c[k]);
+                    s1[k] += v;
+                    s2[k] += v * v;
                 }
-                _ => {
-                    for &v in row {
-                        hist[0][v as usize] += 1;
-                    }
-                }
+            }
+            for (k, &v) in chunks.remainder().iter().enumerate() {
+                let v = u32::from(v);
+                s1[k] += v;
+                s2[k] += v * v;
+            }
+            for k in 0..LANES {
+                sum[k % channels] += u64::from(s1[k]);
+                sq[k % channels] += u64::from(s2[k]);
             }
         }
         let mut lut = [[0u8; 256]; 3];
+        let n = (self.width * self.height) as f64;
         for c in 0..channels {
-            let n: f64 = hist[c].iter().map(|&k| k as f64).sum();
-            let mean = hist[c]
-                .iter()
-                .enumerate()
-                .map(|(v, &k)| v as f64 * k as f64)
-                .sum::<f64>()
-                / n;
-            let var = hist[c]
-                .iter()
-                .enumerate()
-                .map(|(v, &k)| (v as f64 - mean).powi(2) * k as f64)
-                .sum::<f64>()
-                / n;
+            let mean = sum[c] as f64 / n;
+            let var = (sq[c] as f64 / n - mean * mean).max(0.0);
             // A flat image keeps its contrast (there is nothing to stretch).
             let gain = NORMALISED_STD / var.sqrt().max(NORMALISED_STD / 4.0);
             for (v, out) in lut[c].iter_mut().enumerate() {
@@ -407,6 +405,70 @@ mod tests {
         assert_eq!(img.gradient(7, 5), 96);
         assert_eq!(img.gradient(8, 5), 96);
         assert_eq!(img.gradient(3, 5), 0);
+    }
+
+    /// The straightforward statistics: a histogram, then mean and variance over its bins.
+    fn reference_lut(pixels: &[u8], channels: usize) -> Vec<[u8; 256]> {
+        let mut hist = vec![[0u64; 256]; channels];
+        for (k, &v) in pixels.iter().enumerate() {
+            hist[k % channels][v as usize] += 1;
+        }
+        hist.iter()
+            .map(|h| {
+                let n: f64 = h.iter().map(|&k| k as f64).sum();
+                let mean = h
+                    .iter()
+                    .enumerate()
+                    .map(|(v, &k)| v as f64 * k as f64)
+                    .sum::<f64>()
+                    / n;
+                let var = h
+                    .iter()
+                    .enumerate()
+                    .map(|(v, &k)| (v as f64 - mean).powi(2) * k as f64)
+                    .sum::<f64>()
+                    / n;
+                let gain = NORMALISED_STD / var.sqrt().max(NORMALISED_STD / 4.0);
+                let mut lut = [0u8; 256];
+                for (v, out) in lut.iter_mut().enumerate() {
+                    *out = ((v as f64 - mean) * gain + NORMALISED_MEAN)
+                        .round()
+                        .clamp(0.0, 255.0) as u8;
+                }
+                lut
+            })
+            .collect()
+    }
+
+    #[test]
+    fn normalisation_tables_match_the_histogram_reference() {
+        // Odd widths (a remainder after the 48-byte chunks), grey and colour, flat and busy.
+        let mut x = 777u32;
+        let mut noise = |span: u32| {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            ((x >> 16) % span) as u8
+        };
+        for (w, h, format) in [
+            (37u32, 21u32, PixelFormat::Rgb8),
+            (640, 48, PixelFormat::Rgb8),
+            (53, 17, PixelFormat::Grey8),
+        ] {
+            let channels = format.bytes_per_pixel();
+            for span in [1u32, 7, 256] {
+                let px: Vec<u8> = (0..(w * h) as usize * channels)
+                    .map(|_| 60 + noise(span).min(195))
+                    .collect();
+                let img = PreparedImage::new(w, h).unwrap();
+                let got = img.normalisation(format, &px);
+                let want = reference_lut(&px, channels);
+                for c in 0..channels {
+                    assert_eq!(
+                        got[c], want[c],
+                        "{w}x{h} {format:?} span {span} channel {c}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

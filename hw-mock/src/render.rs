@@ -8,9 +8,9 @@
 //! - the noise-free image of the last scene is cached (scenes are compared for equality, not
 //!   hashed, so there are no collisions), and a changed scene only re-traces obstacles, and only
 //!   in 16x16 pixel tiles whose bounding cone of rays can meet the obstacle's bounding sphere;
-//! - per frame only the sensor model runs: gain/offset through a 256-entry table and Gaussian
-//!   noise through a 4096-entry quantile table indexed by splitmix64 hash bits (5 samples per
-//!   hash), all in integer arithmetic.
+//! - per frame only the sensor noise runs: the clean image through the camera's gain/offset is
+//!   cached with it, and each frame adds a precomputed field of Gaussian noise read from a
+//!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
 use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
@@ -120,83 +120,64 @@ impl SensorModel {
     }
 }
 
-/// Fixed-point (x256) response table: `gain * v + offset + 0.5` for every input level (the 0.5
-/// turns the final `>> 8` into rounding to nearest).
-fn response_table(r: Response) -> [i32; 256] {
+/// The response `round(gain * v + offset)`, saturated to a byte, for every input level.
+fn response_table(r: Response) -> [u8; 256] {
     let mut t = [0; 256];
     for (v, e) in t.iter_mut().enumerate() {
-        // Clamped so absurd gains cannot overflow the integer pipeline.
-        *e = ((r.gain * v as f64 + r.offset) * 256.0)
-            .round()
-            .clamp(-1e6, 1e6) as i32
-            + 128;
+        *e = (r.gain * v as f64 + r.offset).round().clamp(0.0, 255.0) as u8;
     }
     t
 }
 
-/// Fixed-point (x256) Gaussian noise table for one sigma.
-fn noise_table(sigma: f64) -> Box<[i32; GAUSS_TABLE_LEN]> {
+/// Samples in a noise field: a power of two above the samples of a 1280x1024 RGB frame.
+const FIELD_BITS: u32 = 22;
+const FIELD_LEN: usize = 1 << FIELD_BITS;
+
+/// A field of Gaussian noise in grey levels, N(0, sigma^2) rounded to integers and saturated
+/// to +-127: quantiles of the normal distribution (a 4096-entry table) drawn by a fixed
+/// splitmix64 stream. Built once per camera and sigma; each frame reads it from its own
+/// offset (see [`apply_sensor`]).
+fn noise_field(sigma: f64) -> Vec<i8> {
     let unit = gaussian_table();
-    let mut t = Box::new([0; GAUSS_TABLE_LEN]);
-    for (e, u) in t.iter_mut().zip(unit.iter()) {
-        *e = (u * sigma * 256.0).round().clamp(-1e6, 1e6) as i32;
+    let mut levels = [0i8; GAUSS_TABLE_LEN];
+    for (l, u) in levels.iter_mut().zip(unit.iter()) {
+        *l = (u * sigma).round().clamp(-127.0, 127.0) as i8;
     }
-    t
+    let mut field = vec![0i8; FIELD_LEN];
+    let mut stream: u64 = 0x6e6f_6973_655f_6669; // "noise_fi": any fixed seed
+    // Five 12-bit draws per hash.
+    for five in field.chunks_mut(5) {
+        let h = splitmix64(stream);
+        stream = stream.wrapping_add(GOLDEN_GAMMA);
+        for (k, f) in five.iter_mut().enumerate() {
+            *f = levels[((h >> (12 * k)) as usize) & (GAUSS_TABLE_LEN - 1)];
+        }
+    }
+    field
 }
 
-/// Applies the sensor to a clean RGB8 image. `noise` is None when sigma is 0.
-fn apply_sensor(
-    clean: &[u8],
-    out: &mut [u8],
-    response: &[i32; 256],
-    noise: Option<&[i32; GAUSS_TABLE_LEN]>,
-    key: u64,
-) {
-    let Some(noise) = noise else {
-        // Noiseless: one byte table does it all.
-        let mut lut = [0u8; 256];
-        for (l, r) in lut.iter_mut().zip(response) {
-            *l = (r >> 8).clamp(0, 255) as u8;
-        }
-        for (o, c) in out.iter_mut().zip(clean) {
-            *o = lut[usize::from(*c)];
-        }
+/// Applies the sensor noise to an image already through the camera's response (`sensed`):
+/// sample `k` gets `field[(offset + k) mod FIELD_LEN]`, the offset drawn from `key` (every
+/// seed, frame and camera gets its own). Frames see the same noise sequence shifted by a
+/// random offset: independent for the flies, which never compare a frame with another at the
+/// same offset difference, and one saturating byte add per sample (SIMD).
+fn apply_sensor(sensed: &[u8], out: &mut [u8], field: Option<&[i8]>, key: u64) {
+    let Some(field) = field else {
+        out.copy_from_slice(sensed);
         return;
     };
-    // Sample k uses bits 12*(k % 5).. of hash(key + (k / 5) * gamma): a splitmix64 stream.
-    // This loop is the whole per-frame cost of a static scene, so it runs in two passes over
-    // blocks: gather response + noise into fixed-point sums (five samples per hash, written out
-    // with constant shifts), then shift, saturate and narrow, which compiles to SIMD packs.
-    const MASK: u64 = GAUSS_TABLE_LEN as u64 - 1;
-    const BLOCK: usize = 5 * 384; // multiple of 5: every block starts on a fresh hash
-    let mut stream = key;
-    let mut sums = [0i32; BLOCK];
-    for (cin, cout) in clean.chunks(BLOCK).zip(out.chunks_mut(BLOCK)) {
-        let sums = &mut sums[..cin.len()];
-        let mut fives = sums.chunks_exact_mut(5).zip(cin.chunks_exact(5));
-        for (sum, c) in &mut fives {
-            let h = splitmix64(stream);
-            stream = stream.wrapping_add(GOLDEN_GAMMA);
-            if let ([s0, s1, s2, s3, s4], [c0, c1, c2, c3, c4]) = (sum, c) {
-                let g =
-                    |c: &u8, bits: u64| response[usize::from(*c)] + noise[(bits & MASK) as usize];
-                *s0 = g(c0, h);
-                *s1 = g(c1, h >> 12);
-                *s2 = g(c2, h >> 24);
-                *s3 = g(c3, h >> 36);
-                *s4 = g(c4, h >> 48);
+    let mut at = (splitmix64(key) as usize) & (FIELD_LEN - 1);
+    for (src, dst) in sensed.chunks(FIELD_LEN).zip(out.chunks_mut(FIELD_LEN)) {
+        // At most two contiguous runs of the field per chunk (it wraps once).
+        let first = src.len().min(FIELD_LEN - at);
+        let (s0, s1) = src.split_at(first);
+        let (d0, d1) = dst.split_at_mut(first);
+        for (s, d, run) in [(s0, d0, at), (s1, d1, 0)] {
+            for ((o, &c), &n) in d.iter_mut().zip(s).zip(&field[run..]) {
+                *o = (i16::from(c) + i16::from(n)).clamp(0, 255) as u8;
             }
         }
-        // The last block of an image whose sample count is not a multiple of 5.
-        let done = cin.len() - cin.len() % 5;
-        let h = splitmix64(stream);
-        for (k, (s, c)) in sums[done..].iter_mut().zip(&cin[done..]).enumerate() {
-            *s = response[usize::from(*c)] + noise[((h >> (12 * k)) & MASK) as usize];
-        }
-        // `response` holds the +0.5 of rounding (see `response_table`).
-        for (o, s) in cout.iter_mut().zip(sums.iter()) {
-            *o = (s >> 8).clamp(0, 255) as u8;
-        }
+        at = (at + src.len()) & (FIELD_LEN - 1);
     }
 }
 
@@ -319,12 +300,13 @@ pub fn render(
             i += 1;
         }
     }
-    let table = (sensor.noise_sigma > 0.0).then(|| noise_table(sensor.noise_sigma));
+    let response = response_table(response);
+    let sensed: Vec<u8> = clean.iter().map(|&c| response[usize::from(c)]).collect();
+    let field = (sensor.noise_sigma > 0.0).then(|| noise_field(sensor.noise_sigma));
     apply_sensor(
-        &clean,
+        &sensed,
         rgb,
-        &response_table(response),
-        table.as_deref(),
+        field.as_deref(),
         sensor.frame_key(frame, camera_index),
     );
     Ok(())
@@ -445,8 +427,11 @@ pub struct CameraRenderer {
     clean_rgb: Vec<u8>,
     clean_depth: Vec<f32>,
     clean_t: Vec<f64>,
-    /// Noise table for the sigma it was built for.
-    noise: Option<(u64, Box<[i32; GAUSS_TABLE_LEN]>)>,
+    /// `clean_rgb` through the camera response of `sensed_for` (gain and offset bits).
+    sensed: Vec<u8>,
+    sensed_for: Option<(u64, u64)>,
+    /// Noise field for the sigma (bits) it was built for.
+    noise: Option<(u64, Vec<i8>)>,
 }
 
 impl std::fmt::Debug for CameraRenderer {
@@ -491,6 +476,8 @@ impl CameraRenderer {
             clean_rgb: Vec::new(),
             clean_depth: Vec::new(),
             clean_t: Vec::new(),
+            sensed: Vec::new(),
+            sensed_for: None,
             noise: None,
         };
         r.render_background();
@@ -587,6 +574,7 @@ impl CameraRenderer {
             }
         }
         self.cached_scene = Some(scene.clone());
+        self.sensed_for = None;
     }
 
     /// Renders one frame of `scene` as seen by camera `camera_index` (0 left, 1 right) into
@@ -605,24 +593,31 @@ impl CameraRenderer {
         if self.cached_scene.as_ref() != Some(scene) {
             self.trace_scene(scene);
         }
+        let response_bits = (response.gain.to_bits(), response.offset.to_bits());
+        if self.sensed_for != Some(response_bits) {
+            let table = response_table(response);
+            self.sensed.clear();
+            self.sensed
+                .extend(self.clean_rgb.iter().map(|&c| table[usize::from(c)]));
+            self.sensed_for = Some(response_bits);
+        }
         let sigma_bits = sensor.noise_sigma.to_bits();
-        let table = if sensor.noise_sigma > 0.0 {
+        let field = if sensor.noise_sigma > 0.0 {
             if self
                 .noise
                 .as_ref()
                 .is_none_or(|(bits, _)| *bits != sigma_bits)
             {
-                self.noise = Some((sigma_bits, noise_table(sensor.noise_sigma)));
+                self.noise = Some((sigma_bits, noise_field(sensor.noise_sigma)));
             }
-            self.noise.as_ref().map(|(_, t)| &**t)
+            self.noise.as_ref().map(|(_, t)| t.as_slice())
         } else {
             None
         };
         apply_sensor(
-            &self.clean_rgb,
+            &self.sensed,
             rgb,
-            &response_table(response),
-            table,
+            field,
             sensor.frame_key(frame, camera_index),
         );
         if let Some(d) = depth {
