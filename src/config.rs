@@ -137,6 +137,12 @@ pub struct EvolutionConfig {
     pub snapshot_queue: usize,
     /// Consecutive rejected left/right candidates before STEREO_SKEW is raised.
     pub skew_fault_rejects: u32,
+    /// Mean fitness of the population under which a new pair counts as matching nowhere
+    /// (measured: ~0.5-1.2 converged on hw-mock's road, 0.07 on a smooth synthetic wall,
+    /// 0.003-0.007 for random flies or a camera delivering noise). 0 disables the check.
+    pub blind_fitness: f64,
+    /// Consecutive new pairs matching nowhere before CAMERA_ERROR (perception blind).
+    pub blind_pairs: u32,
     /// Half-width of the vehicle's lane, metres (vehicle x): flies outside it are not obstacles.
     pub lane_half_width: f64,
     /// How many of the fittest in-lane flies the nearest-obstacle estimate looks at.
@@ -154,6 +160,8 @@ impl Default for EvolutionConfig {
             warmup_generations: 30,
             snapshot_queue: 64,
             skew_fault_rejects: 3,
+            blind_fitness: 0.02,
+            blind_pairs: 3,
             lane_half_width: 1.0,
             obstacle_best_flies: 50,
             obstacle_min_flies: 5,
@@ -505,6 +513,8 @@ struct RawEvolution {
     warmup_generations: u64,
     snapshot_queue: usize,
     skew_fault_rejects: u32,
+    blind_fitness: f64,
+    blind_pairs: u32,
     lane_half_width: f64,
     obstacle_best_flies: usize,
     obstacle_min_flies: usize,
@@ -520,6 +530,8 @@ impl Default for RawEvolution {
             warmup_generations: d.warmup_generations,
             snapshot_queue: d.snapshot_queue,
             skew_fault_rejects: d.skew_fault_rejects,
+            blind_fitness: d.blind_fitness,
+            blind_pairs: d.blind_pairs,
             lane_half_width: d.lane_half_width,
             obstacle_best_flies: d.obstacle_best_flies,
             obstacle_min_flies: d.obstacle_min_flies,
@@ -777,6 +789,15 @@ impl RawEvolution {
         if self.skew_fault_rejects == 0 {
             return bad("evolution.skew_fault_rejects", "must be at least 1");
         }
+        if !(self.blind_fitness.is_finite() && self.blind_fitness >= 0.0) {
+            return bad(
+                "evolution.blind_fitness",
+                "must be >= 0 (0 disables the check)",
+            );
+        }
+        if self.blind_pairs == 0 {
+            return bad("evolution.blind_pairs", "must be at least 1");
+        }
         if !(self.lane_half_width.is_finite() && self.lane_half_width > 0.0) {
             return bad("evolution.lane_half_width", "must be > 0 metres");
         }
@@ -799,6 +820,8 @@ impl RawEvolution {
             warmup_generations: self.warmup_generations,
             snapshot_queue: self.snapshot_queue,
             skew_fault_rejects: self.skew_fault_rejects,
+            blind_fitness: self.blind_fitness,
+            blind_pairs: self.blind_pairs,
             lane_half_width: self.lane_half_width,
             obstacle_best_flies: self.obstacle_best_flies,
             obstacle_min_flies: self.obstacle_min_flies,
@@ -1009,6 +1032,11 @@ interface = "can0"
         check_err(
             &with("cameras", "stale_frames = 0"),
             "cameras.stale_frames",
+            "at least 1",
+        );
+        check_err(
+            &with("evolution", "blind_pairs = 0"),
+            "evolution.blind_pairs",
             "at least 1",
         );
         check_err(

@@ -255,7 +255,8 @@ impl FaultBits {
     pub const EVOLUTION_OVERRUN: Self = Self(1 << 3);
     /// bit 4: the newest perception snapshot is too old.
     pub const SNAPSHOT_STALE: Self = Self(1 << 4);
-    /// bit 5: a camera reports a wrong format or a device error.
+    /// bit 5: a camera reports a wrong format or a device error, or the stereo pair matches
+    /// nowhere (perception blind: a camera delivering noise or covered).
     pub const CAMERA_ERROR: Self = Self(1 << 5);
     /// bit 6: CAN transmission errors.
     pub const CAN_TX_ERROR: Self = Self(1 << 6);

@@ -283,6 +283,7 @@ impl<B: CanBus> ControlThread<B> {
             snapshot_at: s.latest_at,
             skew_fault: s.latest.is_some_and(|l| l.skew_fault),
             overrun: s.latest.is_some_and(|l| l.overrun),
+            blind: s.latest.is_some_and(|l| l.blind),
             can_failing: s.can_failing,
         };
         let faults = self.monitor.evaluate(&observation);

@@ -69,6 +69,8 @@ impl EvolutionThread {
         let mut next_turn: Option<Duration> = None;
         // Generations of the current burst still to run back to back.
         let mut burst: u32 = 0;
+        // Consecutive new pairs on which the population matched nowhere.
+        let mut blind_pairs: u32 = 0;
         while !self.stop.is_requested() {
             if let Some(p) = self.take_pair() {
                 pair = Some(p);
@@ -93,10 +95,36 @@ impl EvolutionThread {
             if overrun {
                 c.overruns.fetch_add(1, Ordering::Relaxed);
             }
+            let warming_up = stats.generation < self.config.warmup_generations;
+            let was_blind = blind_pairs >= self.config.blind_pairs;
+            if warming_up || stats.mean_fitness >= self.config.blind_fitness {
+                blind_pairs = 0;
+            } else if stats.new_frame {
+                blind_pairs = blind_pairs.saturating_add(1);
+            }
+            let blind = blind_pairs >= self.config.blind_pairs;
+            if blind != was_blind {
+                if blind {
+                    tracing::warn!(
+                        mean_fitness = stats.mean_fitness,
+                        blind_fitness = self.config.blind_fitness,
+                        pairs = blind_pairs,
+                        "perception blind: the stereo pair matches nowhere (a camera delivers \
+                         noise or is covered, or the calibration no longer fits): CAMERA_ERROR"
+                    );
+                } else {
+                    tracing::info!(
+                        mean_fitness = stats.mean_fitness,
+                        "perception matches again"
+                    );
+                }
+            }
             let snapshot = Snapshot {
                 generation: stats.generation,
                 global_warning: stats.global_warning,
                 danger: stats.danger,
+                mean_fitness: stats.mean_fitness,
+                blind,
                 visible: stats.visible,
                 new_frame: stats.new_frame,
                 obstacle,
@@ -108,7 +136,7 @@ impl EvolutionThread {
                 pairs: pc.paired,
                 pair_rejects: pc.rejected,
                 skew_fault: pc.consecutive_rejects >= u64::from(self.config.skew_fault_rejects),
-                warming_up: stats.generation < self.config.warmup_generations,
+                warming_up,
                 taken_at: finished,
             };
             match self.snapshots.try_send(snapshot) {

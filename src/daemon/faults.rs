@@ -6,7 +6,7 @@
 //! | STEREO_SKEW | the newest snapshot reports too many consecutive rejected pairs | a pair is made |
 //! | EVOLUTION_OVERRUN | the newest generation took longer than the maximum | a generation is in time |
 //! | SNAPSHOT_STALE | no snapshot for `snapshot_timeout` (after start-up) | a snapshot arrives |
-//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect) | that camera delivers again |
+//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or the stereo pair matches nowhere (perception blind: a camera delivers noise or is covered) | that camera delivers again; the flies match again |
 //! | CAN_TX_ERROR | the last CAN write failed | a write succeeds |
 //!
 //! During start-up (until the daemon is running, at most `startup_timeout`), missing frames and
@@ -33,6 +33,8 @@ pub struct Observation {
     pub snapshot_at: Option<Duration>,
     pub skew_fault: bool,
     pub overrun: bool,
+    /// The newest snapshot found the images matching nowhere.
+    pub blind: bool,
     pub can_failing: bool,
 }
 
@@ -91,7 +93,10 @@ impl FaultMonitor {
         );
         f.set(FaultBits::STEREO_SKEW, o.skew_fault);
         f.set(FaultBits::EVOLUTION_OVERRUN, o.overrun);
-        f.set(FaultBits::CAMERA_ERROR, o.left_error || o.right_error);
+        f.set(
+            FaultBits::CAMERA_ERROR,
+            o.left_error || o.right_error || o.blind,
+        );
         f.set(FaultBits::CAN_TX_ERROR, o.can_failing);
         f
     }
@@ -196,6 +201,7 @@ mod tests {
         check(|o| o.skew_fault = true, FaultBits::STEREO_SKEW);
         check(|o| o.overrun = true, FaultBits::EVOLUTION_OVERRUN);
         check(|o| o.right_error = true, FaultBits::CAMERA_ERROR);
+        check(|o| o.blind = true, FaultBits::CAMERA_ERROR);
         check(|o| o.can_failing = true, FaultBits::CAN_TX_ERROR);
     }
 }

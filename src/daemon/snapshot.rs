@@ -51,10 +51,15 @@ impl ObstacleEstimate {
 pub struct Snapshot {
     /// Engine generation number.
     pub generation: u64,
-    /// The paper's global warning (mean fly warning; scale depends on contrast).
+    /// The paper's global warning (mean fly warning): what the decision thresholds compare.
     pub global_warning: f64,
-    /// Contrast-independent danger, m^-3: what the decision thresholds compare.
+    /// Where the evidence is, m^-3 (diagnostic, see the engine docs).
     pub danger: f64,
+    /// Mean raw fitness of the population (see [`crate::engine::GenerationStats`]).
+    pub mean_fitness: f64,
+    /// The last `blind_pairs` new pairs all left the mean fitness under `blind_fitness`: the
+    /// images match nowhere, so a low warning proves nothing (CAMERA_ERROR).
+    pub blind: bool,
     pub visible: usize,
     /// The generation saw a new pair (the population was re-evaluated).
     pub new_frame: bool,

@@ -170,6 +170,10 @@ pub struct GenerationStats {
     pub global_warning: f64,
     /// `sum(warning) / sum(fitness)`, m^-3: contrast-independent danger (see module docs).
     pub danger: f64,
+    /// Mean raw fitness (after the region of interest, before sharing): how well the stereo
+    /// pair matches where the flies are. Collapses to that of random flies when the images
+    /// match nowhere (a camera delivering noise or covered, a calibration that no longer fits).
+    pub mean_fitness: f64,
     /// Flies evaluated in this generation.
     pub evaluated: usize,
     /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes`).
@@ -335,12 +339,13 @@ impl Engine {
         );
         self.unevaluated_from = n;
         self.sharing.apply(&mut self.pop);
-        let (global_warning, danger, visible) = self.warnings();
+        let (global_warning, danger, mean_fitness, visible) = self.warnings();
 
         self.stats = GenerationStats {
             generation: self.stats.generation + 1,
             global_warning,
             danger,
+            mean_fitness,
             evaluated: n - from,
             probes: self.probed,
             visible,
@@ -369,8 +374,8 @@ impl Engine {
         Ok(())
     }
 
-    /// Warnings of every fly; returns (mean warning, danger, visible flies).
-    fn warnings(&mut self) -> (f64, f64, usize) {
+    /// Warnings of every fly; returns (mean warning, danger, mean fitness, visible flies).
+    fn warnings(&mut self) -> (f64, f64, f64, usize) {
         let min_x = self.params.warning_min_abs_x as f32;
         let min_z = self.params.warning_min_z as f32;
         let p = &mut self.pop;
@@ -396,7 +401,8 @@ impl Engine {
         let (sum_w, sum_f) = (sum(&p.warning), sum(&p.raw_fitness));
         let visible = p.cell.iter().filter(|&&c| c != u32::MAX).count();
         let danger = if sum_f > 0.0 { sum_w / sum_f } else { 0.0 };
-        (sum_w / p.len() as f64, danger, visible)
+        let n = p.len() as f64;
+        (sum_w / n, danger, sum_f / n, visible)
     }
 
     /// Selection and genetic operators: survivors move to `0..keep` (in place), offspring fill

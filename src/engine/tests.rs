@@ -376,11 +376,11 @@ fn danger_is_independent_of_the_fitness_scale() {
     for _ in 0..10 {
         e.step(&frame).expect("step");
     }
-    let (w1, d1, _) = e.warnings();
+    let (w1, d1, _, _) = e.warnings();
     for f in e.pop.raw_fitness.iter_mut() {
         *f *= 8.0;
     }
-    let (w8, d8, _) = e.warnings();
+    let (w8, d8, _, _) = e.warnings();
     assert!((w8 / w1 - 8.0).abs() < 1e-4, "{w1} {w8}");
     assert!((d8 / d1 - 1.0).abs() < 1e-5, "{d1} {d8}");
 }
@@ -448,6 +448,37 @@ fn probing_immigrants_land_at_the_depth_that_matches() {
     assert!(
         probed >= 3 * plain.max(1) && probed >= 20,
         "immigrants within 10 cm of the wall: {probed} with 16 probes vs {plain} without"
+    );
+}
+
+#[test]
+fn mean_fitness_collapses_when_a_camera_delivers_noise() {
+    let rig = rig();
+    let wall = wall_frame(&rig, 6.0, 4, 0);
+    let mut e = Engine::new(&rig, params(2000, 3)).expect("engine");
+    let mut converged = 0.0;
+    for _ in 0..40 {
+        converged = e.step(&wall).expect("step").mean_fitness;
+    }
+    let mut x = 99u64;
+    let noise: Vec<u8> = (0..rig.right.width() * rig.right.height() * 3)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as u8
+        })
+        .collect();
+    let (w, h) = (rig.right.width(), rig.right.height());
+    let garbage = StereoFrame::new(
+        wall.left.clone(),
+        PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, &noise).expect("noise"),
+        1,
+    );
+    let blind = e.step(&garbage).expect("step").mean_fitness;
+    assert!(
+        blind * 5.0 < converged,
+        "mean fitness {converged:.3} on the wall, {blind:.4} with a noise camera"
     );
 }
 
