@@ -137,10 +137,10 @@ pub struct EvolutionConfig {
     pub snapshot_queue: usize,
     /// Consecutive rejected left/right candidates before STEREO_SKEW is raised.
     pub skew_fault_rejects: u32,
-    /// Mean fitness of the population under which a new pair counts as matching nowhere
-    /// (measured: ~0.5-1.2 converged on hw-mock's road, 0.07 on a smooth synthetic wall,
-    /// 0.003-0.007 for random flies or a camera delivering noise). 0 disables the check.
-    pub blind_fitness: f64,
+    /// Fraction of matching flies (the engine's `matched`) under which a new pair counts as
+    /// matching nowhere (measured on hw-mock: 0.97-0.98 converged, 0.77 for the random initial
+    /// flies, 0.03-0.04 with a camera delivering noise). 0 disables the check.
+    pub blind_matched: f64,
     /// Consecutive new pairs matching nowhere before CAMERA_ERROR (perception blind).
     pub blind_pairs: u32,
     /// Half-width of the vehicle's lane, metres (vehicle x): flies outside it are not obstacles.
@@ -160,7 +160,7 @@ impl Default for EvolutionConfig {
             warmup_generations: 30,
             snapshot_queue: 64,
             skew_fault_rejects: 3,
-            blind_fitness: 0.02,
+            blind_matched: 0.25,
             blind_pairs: 3,
             lane_half_width: 1.0,
             obstacle_best_flies: 50,
@@ -513,7 +513,7 @@ struct RawEvolution {
     warmup_generations: u64,
     snapshot_queue: usize,
     skew_fault_rejects: u32,
-    blind_fitness: f64,
+    blind_matched: f64,
     blind_pairs: u32,
     lane_half_width: f64,
     obstacle_best_flies: usize,
@@ -530,7 +530,7 @@ impl Default for RawEvolution {
             warmup_generations: d.warmup_generations,
             snapshot_queue: d.snapshot_queue,
             skew_fault_rejects: d.skew_fault_rejects,
-            blind_fitness: d.blind_fitness,
+            blind_matched: d.blind_matched,
             blind_pairs: d.blind_pairs,
             lane_half_width: d.lane_half_width,
             obstacle_best_flies: d.obstacle_best_flies,
@@ -789,10 +789,10 @@ impl RawEvolution {
         if self.skew_fault_rejects == 0 {
             return bad("evolution.skew_fault_rejects", "must be at least 1");
         }
-        if !(self.blind_fitness.is_finite() && self.blind_fitness >= 0.0) {
+        if !(0.0..=1.0).contains(&self.blind_matched) {
             return bad(
-                "evolution.blind_fitness",
-                "must be >= 0 (0 disables the check)",
+                "evolution.blind_matched",
+                "must be within [0, 1] (0 disables the check)",
             );
         }
         if self.blind_pairs == 0 {
@@ -820,7 +820,7 @@ impl RawEvolution {
             warmup_generations: self.warmup_generations,
             snapshot_queue: self.snapshot_queue,
             skew_fault_rejects: self.skew_fault_rejects,
-            blind_fitness: self.blind_fitness,
+            blind_matched: self.blind_matched,
             blind_pairs: self.blind_pairs,
             lane_half_width: self.lane_half_width,
             obstacle_best_flies: self.obstacle_best_flies,

@@ -97,7 +97,7 @@ impl EvolutionThread {
             }
             let warming_up = stats.generation < self.config.warmup_generations;
             let was_blind = blind_pairs >= self.config.blind_pairs;
-            if warming_up || stats.mean_fitness >= self.config.blind_fitness {
+            if warming_up || stats.matched >= self.config.blind_matched {
                 blind_pairs = 0;
             } else if stats.new_frame {
                 blind_pairs = blind_pairs.saturating_add(1);
@@ -106,17 +106,14 @@ impl EvolutionThread {
             if blind != was_blind {
                 if blind {
                     tracing::warn!(
-                        mean_fitness = stats.mean_fitness,
-                        blind_fitness = self.config.blind_fitness,
+                        matched = stats.matched,
+                        blind_matched = self.config.blind_matched,
                         pairs = blind_pairs,
                         "perception blind: the stereo pair matches nowhere (a camera delivers \
                          noise or is covered, or the calibration no longer fits): CAMERA_ERROR"
                     );
                 } else {
-                    tracing::info!(
-                        mean_fitness = stats.mean_fitness,
-                        "perception matches again"
-                    );
+                    tracing::info!(matched = stats.matched, "perception matches again");
                 }
             }
             let snapshot = Snapshot {

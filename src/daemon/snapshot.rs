@@ -57,8 +57,8 @@ pub struct Snapshot {
     pub danger: f64,
     /// Mean raw fitness of the population (see [`crate::engine::GenerationStats`]).
     pub mean_fitness: f64,
-    /// The last `blind_pairs` new pairs all left the mean fitness under `blind_fitness`: the
-    /// images match nowhere, so a low warning proves nothing (CAMERA_ERROR).
+    /// On the last `blind_pairs` new pairs, fewer than `blind_matched` of the flies matched:
+    /// the images match nowhere, so a low warning proves nothing (CAMERA_ERROR).
     pub blind: bool,
     pub visible: usize,
     /// The generation saw a new pair (the population was re-evaluated).

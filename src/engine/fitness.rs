@@ -27,7 +27,7 @@ use super::Population;
 use super::params::{EngineParams, RoadRoi};
 use super::projector::Projector;
 use super::sharing::Grid;
-use crate::frame::{BPP, PreparedImage, StereoFrame};
+use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
@@ -46,6 +46,8 @@ pub(crate) struct Kernel<'a> {
     row_step: usize,
     roi: Option<RoadRoi>,
     channels: usize,
+    /// SSD (summed over the compared samples) under which a fly's windows match.
+    match_ssd: f32,
 }
 
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.
@@ -78,6 +80,7 @@ impl<'a> Kernel<'a> {
             row_step,
             roi: params.roi,
             channels,
+            match_ssd: (MATCH_SSD_PER_SAMPLE * samples as f64) as f32,
         }
     }
 
@@ -93,6 +96,7 @@ impl<'a> Kernel<'a> {
     }
 
     /// Evaluates flies `range` of `pop`: projections, sharing cells (of `grid`) and `raw_fitness`.
+    /// Returns how many of them both cameras see, and how many of those match (see [`Matches`]).
     pub(crate) fn evaluate(
         &self,
         left: &Projector,
@@ -100,7 +104,7 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
-    ) {
+    ) -> Matches {
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
             (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, range, grid),
@@ -120,7 +124,7 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
-    ) {
+    ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
         let (ld, rd) = (self.left.data(), self.right.data());
         let (ls, rs) = (self.left.stride(), self.right.stride());
@@ -147,6 +151,7 @@ impl<'a> Kernel<'a> {
         let (ys, zs) = (&pop.y[from..][..len], &pop.z[from..][..len]);
         let fitness = &mut pop.raw_fitness[from..][..len];
         let cells = &mut pop.cell[from..][..len];
+        let mut m = Matches::default();
         for i in 0..len {
             let (ul, vl, ur, vr) = (ul[i], vl[i], ur[i], vr[i]);
             // NaN marks a fly outside an image (project_batch).
@@ -173,6 +178,7 @@ impl<'a> Kernel<'a> {
                 fitness[i] = 0.0;
                 continue;
             };
+            m.visible += 1;
             let ssd = ssd::<W>(
                 ld,
                 lo,
@@ -184,6 +190,7 @@ impl<'a> Kernel<'a> {
                 mask,
                 t,
             );
+            m.matched += u32::from(ssd as f32 <= self.match_ssd);
             // FITNESS_SCALE gl gr / (ssd / |N| + ssd_floor), written with one division.
             let mut f = gl as f32 * gr as f32 * self.scale / (ssd as f32 + self.floor);
             if ys[i] > max_h || ys[i] < min_h || zs[i] > max_z {
@@ -191,7 +198,20 @@ impl<'a> Kernel<'a> {
             }
             fitness[i] = f;
         }
+        m
     }
+}
+
+/// Per-sample SSD under which two windows count as matching: a quarter of what two unrelated
+/// windows of normalised images give on average (2 x NORMALISED_STD^2). Frames are normalised
+/// to that standard deviation, so the level holds for any camera and scene.
+const MATCH_SSD_PER_SAMPLE: f64 = 0.25 * 2.0 * NORMALISED_STD * NORMALISED_STD;
+
+/// What one evaluation saw: flies inside both images, and those whose windows match.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Matches {
+    pub(crate) visible: u32,
+    pub(crate) matched: u32,
 }
 
 /// Sum of squared differences of `rows` rows of `W` bytes under `mask`, the right row being

@@ -174,6 +174,11 @@ pub struct GenerationStats {
     /// pair matches where the flies are. Collapses to that of random flies when the images
     /// match nowhere (a camera delivering noise or covered, a calibration that no longer fits).
     pub mean_fitness: f64,
+    /// Fraction of the flies evaluated in this generation (all of them on a new frame) whose
+    /// two windows match: per-sample SSD under a quarter of that of two unrelated windows of
+    /// normalised images. Independent of camera and scene; ~0 when the images match nowhere
+    /// (a camera delivering noise or covered).
+    pub matched: f64,
     /// Flies evaluated in this generation.
     pub evaluated: usize,
     /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes`).
@@ -330,7 +335,7 @@ impl Engine {
         }
         let from = self.unevaluated_from;
         let n = self.pop.len();
-        kernel.evaluate(
+        let matches = kernel.evaluate(
             &self.left,
             &self.right,
             &mut self.pop,
@@ -346,6 +351,11 @@ impl Engine {
             global_warning,
             danger,
             mean_fitness,
+            matched: if matches.visible > 0 {
+                f64::from(matches.matched) / f64::from(matches.visible)
+            } else {
+                0.0
+            },
             evaluated: n - from,
             probes: self.probed,
             visible,

@@ -452,13 +452,13 @@ fn probing_immigrants_land_at_the_depth_that_matches() {
 }
 
 #[test]
-fn mean_fitness_collapses_when_a_camera_delivers_noise() {
+fn flies_stop_matching_when_a_camera_delivers_noise() {
     let rig = rig();
     let wall = wall_frame(&rig, 6.0, 4, 0);
     let mut e = Engine::new(&rig, params(2000, 3)).expect("engine");
-    let mut converged = 0.0;
+    let mut converged = GenerationStats::default();
     for _ in 0..40 {
-        converged = e.step(&wall).expect("step").mean_fitness;
+        converged = e.step(&wall).expect("step");
     }
     let mut x = 99u64;
     let noise: Vec<u8> = (0..rig.right.width() * rig.right.height() * 3)
@@ -475,10 +475,18 @@ fn mean_fitness_collapses_when_a_camera_delivers_noise() {
         PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, &noise).expect("noise"),
         1,
     );
-    let blind = e.step(&garbage).expect("step").mean_fitness;
+    let blind = e.step(&garbage).expect("step");
     assert!(
-        blind * 5.0 < converged,
-        "mean fitness {converged:.3} on the wall, {blind:.4} with a noise camera"
+        blind.mean_fitness * 5.0 < converged.mean_fitness,
+        "mean fitness {:.3} on the wall, {:.4} with a noise camera",
+        converged.mean_fitness,
+        blind.mean_fitness
+    );
+    assert!(
+        converged.matched > 0.4 && blind.matched < 0.1,
+        "matching flies: {:.3} on the wall, {:.3} with a noise camera",
+        converged.matched,
+        blind.matched
     );
 }
 
