@@ -329,6 +329,39 @@ impl FlydRun {
         self.run.result("flyd")["exit"].parse().expect("exit=N")
     }
 
+    /// flyd exited 0 at the end of the scenario (SIGTERM), whatever the scenario did to it.
+    fn assert_exited_cleanly(&self) {
+        assert_eq!(
+            self.exit_code(),
+            0,
+            "flyd must not crash; log:\n{}",
+            tail(&self.log_text, 20)
+        );
+    }
+
+    /// The feeder's first frame with `label` for camera `side` ("left" or "right") and its
+    /// first real frame after that: the episode a fault scenario injected.
+    fn episode(&self, side: &str, label: &str) -> (&TimelineRow, &TimelineRow) {
+        let of = |row: &TimelineRow| {
+            if side == "left" {
+                row.left.clone()
+            } else {
+                row.right.clone()
+            }
+        };
+        let start = self
+            .timeline
+            .iter()
+            .find(|row| of(row) == label)
+            .unwrap_or_else(|| panic!("the feeder never fed {label} to the {side} camera"));
+        let end = self
+            .timeline
+            .iter()
+            .find(|row| row.index > start.index && of(row) == "frame")
+            .unwrap_or_else(|| panic!("the feeder never resumed the {side} camera"));
+        (start, end)
+    }
+
     /// Checks that hold for every run: all CRCs valid, every message's alive counter +1 mod 15
     /// from frame to frame, command and status periods near the DBC's cycle time. Silences on
     /// the bus longer than `max_gap` seconds (the CAN-down scenario) break the counter chain;
@@ -643,15 +676,7 @@ fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
     let r = run_flyd(flyd_scenario("flyd_camera_stops"));
     let bus = r.check_bus();
     assert_eq!(r.exit_code(), 0);
-    let rows = &r.timeline;
-    let stop_at = rows
-        .iter()
-        .find(|row| row.left == "skip")
-        .expect("the feeder skipped the left camera");
-    let resume = rows
-        .iter()
-        .find(|row| row.index > stop_at.index && row.left == "frame")
-        .expect("the feeder resumed the left camera");
+    let (stop_at, resume) = r.episode("left", "skip");
     let last_left = r.frame_time(stop_at.index - 1);
     let stale = FaultBits::LEFT_CAMERA_STALE;
     let statuses = r.statuses_from(r.frame_time(0));
@@ -739,21 +764,8 @@ fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
 fn flyd_flags_a_camera_delivering_noise_and_recovers() {
     let r = run_flyd(flyd_scenario("flyd_garbage"));
     let bus = r.check_bus();
-    assert_eq!(
-        r.exit_code(),
-        0,
-        "flyd must not crash; log:\n{}",
-        tail(&r.log_text, 20)
-    );
-    let rows = &r.timeline;
-    let start = rows
-        .iter()
-        .find(|row| row.right == "garbage")
-        .expect("the feeder sent garbage to the right camera");
-    let end = rows
-        .iter()
-        .find(|row| row.index > start.index && row.right == "frame")
-        .expect("the feeder resumed the right camera");
+    r.assert_exited_cleanly();
+    let (start, end) = r.episode("right", "garbage");
     let (t_start, t_end) = (r.frame_time(start.index), r.frame_time(end.index));
     let error = FaultBits::CAMERA_ERROR;
     let statuses = r.statuses_from(r.frame_time(0));
@@ -889,12 +901,7 @@ fn flyd_survives_vcan_down_and_up_and_sends_again() {
 fn flyd_names_a_camera_with_the_wrong_format_and_raises_a_fault() {
     let r = run_flyd(flyd_scenario("flyd_bad_format"));
     let bus = r.check_bus();
-    assert_eq!(
-        r.exit_code(),
-        0,
-        "flyd must not crash; log:\n{}",
-        tail(&r.log_text, 20)
-    );
+    r.assert_exited_cleanly();
     let right = r.run.result("devices")["right"].clone();
     let errors = r.logged("camera error");
     // The first warning may be "not open" (flyd opens cameras in their threads); the format
