@@ -420,7 +420,7 @@ impl<B: CanBus> ControlThread<B> {
             overruns = i.evolution.overruns.load(Ordering::Relaxed),
             snapshots_dropped = i.evolution.snapshots_dropped.load(Ordering::Relaxed),
             global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
-            global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
+            matched = latest.map_or(f64::NAN, |l| l.matched),
             perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
             obstacle_m = latest.and_then(|l| l.obstacle).map(|o| o.distance),
             decision = %s.command,

@@ -129,7 +129,7 @@ impl EvolutionThread {
                 generation: stats.generation,
                 global_warning: stats.global_warning,
                 danger: stats.danger,
-                mean_fitness: stats.mean_fitness,
+                matched: stats.matched,
                 blind,
                 visible: stats.visible,
                 new_frame: stats.new_frame,

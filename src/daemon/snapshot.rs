@@ -55,8 +55,9 @@ pub struct Snapshot {
     pub global_warning: f64,
     /// Where the evidence is, m^-3 (diagnostic, see the engine docs).
     pub danger: f64,
-    /// Mean raw fitness of the population (see [`crate::engine::GenerationStats`]).
-    pub mean_fitness: f64,
+    /// Fraction of the flies evaluated in the generation whose windows match (see
+    /// [`crate::engine::GenerationStats`]): what `blind` is judged on, logged with the stats.
+    pub matched: f64,
     /// On the last `blind_pairs` new pairs, fewer than `blind_matched` of the flies matched:
     /// the images match nowhere, so a low warning proves nothing (CAMERA_ERROR).
     pub blind: bool,
