@@ -648,13 +648,10 @@ impl Sampler {
     /// depth.
     #[inline]
     fn candidate_in_block<R: Rng>(&self, rng: &mut R, b: usize) -> [f32; 3] {
-        let Some(&[x0, x1, y0, y1]) = self.blocks.get(b) else {
-            return self.candidate(rng);
-        };
-        let r = rng.next_u64();
-        let xn = lerp((x0, x1), unit_f32(r as u32));
-        let yn = lerp((y0, y1), unit_f32((r >> 32) as u32));
-        self.point(xn, yn, rng)
+        match self.in_block(rng, b) {
+            Some((xn, yn)) => self.point(xn, yn, rng),
+            None => self.candidate(rng),
+        }
     }
 
     /// A point of left-image block `b`, uniform over its normalised bounds.
