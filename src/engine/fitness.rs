@@ -48,6 +48,30 @@ pub(crate) struct Kernel<'a> {
     channels: usize,
     /// SSD (summed over the compared samples) under which a fly's windows match.
     match_ssd: f32,
+    /// Instruction set of the evaluation, detected at run time.
+    isa: Isa,
+}
+
+/// Instruction sets the evaluation is compiled for. Both give bit-identical fitness (integer
+/// SSD, the same f32 operations in the same order): the choice changes speed, never results.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// SSE2 (the x86-64 baseline) or portable code.
+    Baseline,
+    /// AVX2: a 32-byte window row in one register, 16-bit lanes.
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl Isa {
+    /// The best instruction set this CPU has (checked once; the result is cached by std).
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+        Isa::Baseline
+    }
 }
 
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.
@@ -59,6 +83,18 @@ const fn mask<const W: usize>(radius: usize, channels: usize) -> [u8; W] {
         if k < (2 * radius + 1) * BPP && k % BPP < channels {
             m[k] = 0xff;
         }
+        k += 1;
+    }
+    m
+}
+
+/// [`mask`] widened to 16-bit lanes (what the AVX2 kernel compares in).
+const fn mask16<const W: usize>(radius: usize, channels: usize) -> [i16; W] {
+    let bytes = mask::<W>(radius, channels);
+    let mut m = [0i16; W];
+    let mut k = 0;
+    while k < W {
+        m[k] = if bytes[k] != 0 { -1 } else { 0 };
         k += 1;
     }
     m
@@ -81,7 +117,15 @@ impl<'a> Kernel<'a> {
             roi: params.roi,
             channels,
             match_ssd: (MATCH_SSD_PER_SAMPLE * samples as f64) as f32,
+            isa: Isa::detect(),
         }
+    }
+
+    /// The same kernel on another instruction set (tests compare them).
+    #[cfg(test)]
+    pub(crate) fn with_isa(mut self, isa: Isa) -> Self {
+        self.isa = isa;
+        self
     }
 
     /// Gradient byte of the left image at the pixel nearest to `(u, v)` (0 outside it).
@@ -105,19 +149,50 @@ impl<'a> Kernel<'a> {
         range: Range<usize>,
         grid: &Grid,
     ) -> Matches {
+        match self.isa {
+            Isa::Baseline => self.evaluate_on::<false>(left, right, pop, range, grid),
+            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { self.evaluate_avx2(left, right, pop, range, grid) },
+        }
+    }
+
+    /// The evaluation compiled with AVX2 enabled (projection, scalar code and SSD alike).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn evaluate_avx2(
+        &self,
+        left: &Projector,
+        right: &Projector,
+        pop: &mut Population,
+        range: Range<usize>,
+        grid: &Grid,
+    ) -> Matches {
+        self.evaluate_on::<true>(left, right, pop, range, grid)
+    }
+
+    #[inline(always)]
+    fn evaluate_on<const AVX2: bool>(
+        &self,
+        left: &Projector,
+        right: &Projector,
+        pop: &mut Population,
+        range: Range<usize>,
+        grid: &Grid,
+    ) -> Matches {
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, range, grid),
-            (1, _) => self.evaluate_with::<16, 1, 3>(left, right, pop, range, grid),
-            (2, 1) => self.evaluate_with::<32, 2, 1>(left, right, pop, range, grid),
-            (2, _) => self.evaluate_with::<32, 2, 3>(left, right, pop, range, grid),
-            (_, 1) => self.evaluate_with::<32, 3, 1>(left, right, pop, range, grid),
-            (_, _) => self.evaluate_with::<32, 3, 3>(left, right, pop, range, grid),
+            (1, 1) => self.evaluate_with::<16, 1, 1, AVX2>(left, right, pop, range, grid),
+            (1, _) => self.evaluate_with::<16, 1, 3, AVX2>(left, right, pop, range, grid),
+            (2, 1) => self.evaluate_with::<32, 2, 1, AVX2>(left, right, pop, range, grid),
+            (2, _) => self.evaluate_with::<32, 2, 3, AVX2>(left, right, pop, range, grid),
+            (_, 1) => self.evaluate_with::<32, 3, 1, AVX2>(left, right, pop, range, grid),
+            (_, _) => self.evaluate_with::<32, 3, 3, AVX2>(left, right, pop, range, grid),
         }
     }
 
     #[inline(always)]
-    fn evaluate_with<const W: usize, const R: usize, const C: usize>(
+    fn evaluate_with<const W: usize, const R: usize, const C: usize, const AVX2: bool>(
         &self,
         left: &Projector,
         right: &Projector,
@@ -126,6 +201,7 @@ impl<'a> Kernel<'a> {
         grid: &Grid,
     ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
+        let mask16 = &const { mask16::<W>(R, C) };
         let (ld, rd) = (self.left.data(), self.right.data());
         let (ls, rs) = (self.left.stride(), self.right.stride());
         let r = R as isize;
@@ -153,6 +229,27 @@ impl<'a> Kernel<'a> {
         let cells = &mut pop.cell[from..][..len];
         let mut m = Matches::default();
         for i in 0..len {
+            // The windows are scattered over two images larger than L2: fetch the windows of a
+            // fly a few places ahead while this one is computed.
+            if let (Some(&a), Some(&b), Some(&c), Some(&d)) = (
+                ul.get(i + PREFETCH_AHEAD),
+                vl.get(i + PREFETCH_AHEAD),
+                ur.get(i + PREFETCH_AHEAD),
+                vr.get(i + PREFETCH_AHEAD),
+            ) {
+                if !(a.is_nan() || c.is_nan()) {
+                    let lo = self
+                        .left
+                        .offset((a + 0.5) as isize - r, (b + 0.5) as isize - r);
+                    let ro = self
+                        .right
+                        .offset((c - 0.5) as isize - r, (d + 0.5) as isize - r);
+                    for j in 0..rows.div_ceil(row_step) {
+                        prefetch::<W>(ld, lo + j * ls * row_step);
+                        prefetch::<W>(rd, ro + j * rs * row_step);
+                    }
+                }
+            }
             let (ul, vl, ur, vr) = (ul[i], vl[i], ur[i], vr[i]);
             // NaN marks a fly outside an image (project_batch).
             if ul.is_nan() || ur.is_nan() {
@@ -179,17 +276,16 @@ impl<'a> Kernel<'a> {
                 continue;
             };
             m.visible += 1;
-            let ssd = ssd::<W>(
-                ld,
-                lo,
-                ls * row_step,
-                rd,
-                ro,
-                rs * row_step,
-                rows.div_ceil(row_step),
-                mask,
-                t,
-            );
+            let n_rows = rows.div_ceil(row_step);
+            let (lstep, rstep) = (ls * row_step, rs * row_step);
+            let ssd = match () {
+                // SAFETY: AVX2 is true only inside `evaluate_avx2`, entered after detection.
+                #[cfg(target_arch = "x86_64")]
+                () if AVX2 => unsafe {
+                    avx2::ssd::<W>(ld, lo, lstep, rd, ro, rstep, n_rows, mask16, t)
+                },
+                () => ssd::<W>(ld, lo, lstep, rd, ro, rstep, n_rows, mask, t),
+            };
             m.matched += u32::from(ssd as f32 <= self.match_ssd);
             // FITNESS_SCALE gl gr / (ssd / |N| + ssd_floor), written with one division.
             let mut f = gl as f32 * gr as f32 * self.scale / (ssd as f32 + self.floor);
@@ -200,6 +296,28 @@ impl<'a> Kernel<'a> {
         }
         m
     }
+}
+
+/// How many flies ahead the evaluation prefetches windows.
+const PREFETCH_AHEAD: usize = 8;
+
+/// Hints the cache lines of a `W + BPP`-byte window row starting at `data[at]` (a hint only:
+/// an address outside `data` is never dereferenced).
+#[inline(always)]
+fn prefetch<const W: usize>(data: &[u8], at: usize) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "sse"))]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let p = data.as_ptr().wrapping_add(at).cast::<i8>();
+        // SAFETY: a prefetch is a hint that never dereferences its address (it cannot fault),
+        // and SSE is part of the x86-64 baseline (checked by the cfg above).
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(p);
+            _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(W + BPP - 1));
+        }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "sse")))]
+    let _ = (data, at);
 }
 
 /// Per-sample SSD under which two windows count as matching: a quarter of what two unrelated
@@ -301,6 +419,78 @@ fn row_ssd<const W: usize>(a: &[u8; W], b0: &[u8; W], b1: &[u8; W], t: u16, mask
     }
 }
 
+/// The SSD with AVX2: each 16 bytes of a row widened to 16-bit lanes in one load, the right
+/// row interpolated as `b0 + (((b1 - b0) t + 64) >> 7)` with one `vpmulhrsw` (the same integer
+/// as the SSE2 blend `(b0 (128 - t) + b1 t + 64) >> 7`), masked, squared and summed by
+/// `vpmaddwd`.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::BPP;
+    use std::arch::x86_64::*;
+
+    /// Same contract and result as [`super::ssd`]; `mask` is the byte mask widened to lanes.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn ssd<const W: usize>(
+        l: &[u8],
+        lo: usize,
+        ls: usize,
+        r: &[u8],
+        ro: usize,
+        rs: usize,
+        rows: usize,
+        mask: &[i16; W],
+        t: u16,
+    ) -> u32 {
+        // t = 128 is all of the next pixel: the same bytes as t = 0 one pixel on, and keeps
+        // t << 8 inside an i16.
+        let (ro, t) = if t >= 128 { (ro + BPP, 0) } else { (ro, t) };
+        let last = rows.saturating_sub(1);
+        // One bounds check for the whole window instead of one per load.
+        if rows == 0
+            || lo + last * ls + W > l.len()
+            || ro + last * rs + W + BPP > r.len()
+            || !(W == 16 || W == 32)
+        {
+            return u32::MAX / 2;
+        }
+        let (lp, rp) = (l.as_ptr(), r.as_ptr());
+        // SAFETY: every load below reads 16 bytes at an offset checked above to lie inside
+        // `l` or `r`; AVX2 is enabled for this function.
+        unsafe {
+            let tw = _mm256_set1_epi16((t << 8) as i16);
+            let m0 = _mm256_loadu_si256(mask.as_ptr().cast());
+            let m1 = _mm256_loadu_si256(mask.as_ptr().add(W - 16).cast());
+            let widen = |p: *const u8| _mm256_cvtepu8_epi16(_mm_loadu_si128(p.cast()));
+            let half = |a: *const u8, b: *const u8, m: __m256i| {
+                let (va, b0, b1) = (widen(a), widen(b), widen(b.add(BPP)));
+                let vb = _mm256_add_epi16(b0, _mm256_mulhrs_epi16(_mm256_sub_epi16(b1, b0), tw));
+                let d = _mm256_and_si256(_mm256_sub_epi16(va, vb), m);
+                _mm256_madd_epi16(d, d)
+            };
+            let mut acc = _mm256_setzero_si256();
+            for j in 0..rows {
+                let (a, b) = (lp.add(lo + j * ls), rp.add(ro + j * rs));
+                acc = _mm256_add_epi32(acc, half(a, b, m0));
+                if W == 32 {
+                    acc = _mm256_add_epi32(acc, half(a.add(16), b.add(16), m1));
+                }
+            }
+            let s = _mm_add_epi32(
+                _mm256_castsi256_si128(acc),
+                _mm256_extracti128_si256::<1>(acc),
+            );
+            let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b01_00_11_10>(s));
+            let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b10_11_00_01>(s));
+            _mm_cvtsi128_si32(s) as u32
+        }
+    }
+}
+
 /// Portable version of the row kernel (the reference the SSE2 one is tested against).
 #[cfg_attr(all(target_arch = "x86_64", target_feature = "sse2"), allow(dead_code))]
 #[inline(always)]
@@ -364,6 +554,41 @@ mod tests {
         let m: [u8; 16] = mask(1, 3);
         assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 1, &m, 64), 0);
         assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 1, &m, 0), 9 * 100);
+    }
+
+    #[test]
+    fn avx2_ssd_matches_the_baseline_one() {
+        if Isa::detect() == Isa::Baseline {
+            println!("SKIP avx2_ssd_matches_the_baseline_one: this CPU has no AVX2");
+            return;
+        }
+        let mut x = 0x2545_f491u32;
+        let mut byte = || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as u8
+        };
+        let (l, r): (Vec<u8>, Vec<u8>) = (0..4096).map(|_| (byte(), byte())).unzip();
+        for t in 0..=128u16 {
+            for (lo, ro) in [(0, 0), (5, 17), (300, 1200), (1000, 3)] {
+                let (m, m16) = (mask::<32>(3, 3), mask16::<32>(3, 3));
+                let want = ssd::<32>(&l, lo, 640, &r, ro, 640, 3, &m, t);
+                // SAFETY: AVX2 detected above.
+                let got = unsafe { avx2::ssd::<32>(&l, lo, 640, &r, ro, 640, 3, &m16, t) };
+                assert_eq!(got, want, "t {t} lo {lo} ro {ro}");
+                let (m, m16) = (mask::<16>(1, 1), mask16::<16>(1, 1));
+                let want = ssd::<16>(&l, lo, 64, &r, ro, 64, 3, &m, t);
+                // SAFETY: AVX2 detected above.
+                let got = unsafe { avx2::ssd::<16>(&l, lo, 64, &r, ro, 64, 3, &m16, t) };
+                assert_eq!(got, want, "t {t} lo {lo} ro {ro}");
+            }
+        }
+        // A window that would read past the buffer fails as a mismatch.
+        let m16 = mask16::<32>(3, 3);
+        // SAFETY: AVX2 detected above.
+        let past = unsafe { avx2::ssd::<32>(&l, 4090, 640, &r, 0, 640, 3, &m16, 0) };
+        assert_eq!(past, u32::MAX / 2);
     }
 
     #[test]

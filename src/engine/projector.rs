@@ -107,7 +107,9 @@ impl Projector {
 
 impl Projector {
     /// Projects a batch of points, writing NaN for points behind the camera or outside the image.
-    /// Branch-free so the compiler vectorises it (4 flies per instruction with SSE2).
+    /// Branch-free so the compiler vectorises it (4 flies per instruction with SSE2, 8 when
+    /// inlined into the AVX2 evaluation).
+    #[inline(always)]
     pub(crate) fn project_batch(
         &self,
         x: &[f32],

@@ -518,3 +518,41 @@ fn probe_rays_stay_inside_the_road_region_of_interest() {
     }
     assert!(checked > 100, "only {checked} probe points checked");
 }
+
+#[test]
+fn every_instruction_set_gives_the_same_fitness() {
+    use super::fitness::Isa;
+    let rig = rig();
+    let frame = wall_frame(&rig, 4.0, 11, 1);
+    let mut e = Engine::new(&rig, params(2000, 11)).expect("engine");
+    for _ in 0..10 {
+        e.step(&frame).expect("step");
+    }
+    let detected = Isa::detect();
+    if detected == Isa::Baseline {
+        println!(
+            "SKIP every_instruction_set_gives_the_same_fitness: only the baseline on this CPU"
+        );
+        return;
+    }
+    let eval = |isa| {
+        let mut pop = e.pop.clone();
+        let kernel = Kernel::new(&frame, &e.params).with_isa(isa);
+        let n = pop.len();
+        let m = kernel.evaluate(&e.left, &e.right, &mut pop, 0..n, &e.sharing);
+        let bits: Vec<u32> = [&pop.raw_fitness, &pop.u_left, &pop.v_left, &pop.u_right]
+            .iter()
+            .flat_map(|v| v.iter().map(|f| f.to_bits()))
+            .chain(pop.cell.iter().copied())
+            .collect();
+        (bits, m)
+    };
+    let (base, m_base) = eval(Isa::Baseline);
+    let (fast, m_fast) = eval(detected);
+    assert!(
+        m_base.matched > 1000,
+        "{m_base:?}: the flies should have converged"
+    );
+    assert_eq!(m_base, m_fast);
+    assert!(base == fast, "fitness differs between instruction sets");
+}
