@@ -28,6 +28,7 @@ use super::params::{EngineParams, RoadRoi};
 use super::projector::Projector;
 use super::sharing::Grid;
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
+pub(crate) use crate::isa::Isa;
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
@@ -50,28 +51,6 @@ pub(crate) struct Kernel<'a> {
     match_ssd: f32,
     /// Instruction set of the evaluation, detected at run time.
     isa: Isa,
-}
-
-/// Instruction sets the evaluation is compiled for. Both give bit-identical fitness (integer
-/// SSD, the same f32 operations in the same order): the choice changes speed, never results.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Isa {
-    /// SSE2 (the x86-64 baseline) or portable code.
-    Baseline,
-    /// AVX2: a 32-byte window row in one register, 16-bit lanes.
-    #[cfg(target_arch = "x86_64")]
-    Avx2,
-}
-
-impl Isa {
-    /// The best instruction set this CPU has (checked once; the result is cached by std).
-    pub(crate) fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
-        }
-        Isa::Baseline
-    }
 }
 
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.

@@ -1,0 +1,28 @@
+//! Instruction sets the hot loops are compiled for, picked at run time.
+//!
+//! The release build targets the x86-64 baseline (SSE2), so one binary runs on any vehicle PC.
+//! The hottest loops (fitness evaluation, frame preparation) are also compiled with AVX2 and the
+//! CPU chooses at start. Every path gives bit-identical results (integer arithmetic, the same
+//! f32 operations in the same order; Rust never fuses a multiply and an add on its own): the
+//! choice changes speed, never a fitness, a fly or a frame. Tests compare the paths.
+
+/// An instruction set a hot loop can run on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// SSE2 (the x86-64 baseline) or portable code.
+    Baseline,
+    /// AVX2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl Isa {
+    /// The best instruction set this CPU has (std caches the CPUID query).
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+        Isa::Baseline
+    }
+}
