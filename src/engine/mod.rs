@@ -230,6 +230,9 @@ pub struct Engine {
     change: change::ChangeMap,
     /// Survivor flags of the current selection.
     chosen: Vec<bool>,
+    /// Compaction scratch: non-survivor slots below `survivors()`, survivors above it.
+    holes: Vec<u32>,
+    movers: Vec<u32>,
     /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
     probe: Population,
     /// Population slot of each probed immigrant.
@@ -276,6 +279,8 @@ impl Engine {
                 n,
             ),
             chosen: vec![false; n],
+            holes: vec![0; n],
+            movers: vec![0; n],
             probe: Population::with_len(params.immigrants() * params.immigrant_probes as usize),
             probe_slot: vec![0; params.immigrants()],
             probed: 0,
@@ -425,22 +430,26 @@ impl Engine {
         let immigrants_from = n - self.params.immigrants();
         self.selector
             .select(&self.pop.fitness, keep, &mut self.chosen);
-        // Compact: each non-survivor slot below `keep` takes a survivor from above it. There are
-        // exactly as many of one as of the other. Survivors already below `keep` (the usual case
-        // for long-lived flies) do not move.
-        let mut src = keep;
-        for dst in 0..keep {
-            if self.chosen[dst] {
-                continue;
+        // Compact: each non-survivor slot below `keep` takes a survivor from above it, the k-th
+        // hole the k-th such survivor. There are exactly as many of one as of the other.
+        // Survivors already below `keep` (the usual case for long-lived flies) do not move. The
+        // two lists are built without branches (a survivor flag is a coin toss to a predictor).
+        let (mut holes, mut movers) = (0, 0);
+        for (dst, &c) in self.chosen[..keep].iter().enumerate() {
+            if let Some(slot) = self.holes.get_mut(holes) {
+                *slot = dst as u32;
             }
-            while src < n && !self.chosen[src] {
-                src += 1;
+            holes += usize::from(!c);
+        }
+        for (src, &c) in self.chosen[keep..n].iter().enumerate() {
+            if let Some(slot) = self.movers.get_mut(movers) {
+                *slot = (keep + src) as u32;
             }
-            if src == n {
-                break;
-            }
-            self.pop.move_fly(dst, src);
-            src += 1;
+            movers += usize::from(c);
+        }
+        for k in 0..holes.min(movers) {
+            self.pop
+                .move_fly(self.holes[k] as usize, self.movers[k] as usize);
         }
         if self.params.local_mating > 0.0 {
             self.mates.index(&self.pop.cell[..keep]);
