@@ -185,6 +185,14 @@ impl PreparedImage {
     pub fn offset(&self, x: isize, y: isize) -> usize {
         ((y + PAD as isize) as usize) * self.stride + ((x + PAD as isize) as usize) * BPP
     }
+    /// [`Self::offset`] in 32-bit arithmetic (what the vectorised evaluation computes); wraps
+    /// instead of failing outside the valid range, so callers bounds-check the result.
+    #[inline(always)]
+    pub fn offset32(&self, x: i32, y: i32) -> u32 {
+        let pad = PAD as i32;
+        (y.wrapping_add(pad).wrapping_mul(self.stride as i32))
+            .wrapping_add(x.wrapping_add(pad).wrapping_mul(BPP as i32)) as u32
+    }
     /// Colour channels of pixel `(x, y)` (inside the image).
     pub fn colour(&self, x: u32, y: u32) -> [u8; 3] {
         let o = self.offset(x as isize, y as isize);

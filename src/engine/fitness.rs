@@ -127,12 +127,13 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
+        scratch: &mut Scratch,
     ) -> Matches {
         match self.isa {
-            Isa::Baseline => self.evaluate_on::<false>(left, right, pop, range, grid),
+            Isa::Baseline => self.evaluate_on::<false>(left, right, pop, range, grid, scratch),
             // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.evaluate_avx2(left, right, pop, range, grid) },
+            Isa::Avx2 => unsafe { self.evaluate_avx2(left, right, pop, range, grid, scratch) },
         }
     }
 
@@ -146,8 +147,9 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
+        scratch: &mut Scratch,
     ) -> Matches {
-        self.evaluate_on::<true>(left, right, pop, range, grid)
+        self.evaluate_on::<true>(left, right, pop, range, grid, scratch)
     }
 
     #[inline(always)]
@@ -158,15 +160,16 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
+        scratch: &mut Scratch,
     ) -> Matches {
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1, AVX2>(left, right, pop, range, grid),
-            (1, _) => self.evaluate_with::<16, 1, 3, AVX2>(left, right, pop, range, grid),
-            (2, 1) => self.evaluate_with::<32, 2, 1, AVX2>(left, right, pop, range, grid),
-            (2, _) => self.evaluate_with::<32, 2, 3, AVX2>(left, right, pop, range, grid),
-            (_, 1) => self.evaluate_with::<32, 3, 1, AVX2>(left, right, pop, range, grid),
-            (_, _) => self.evaluate_with::<32, 3, 3, AVX2>(left, right, pop, range, grid),
+            (1, 1) => self.evaluate_with::<16, 1, 1, AVX2>(left, right, pop, range, grid, scratch),
+            (1, _) => self.evaluate_with::<16, 1, 3, AVX2>(left, right, pop, range, grid, scratch),
+            (2, 1) => self.evaluate_with::<32, 2, 1, AVX2>(left, right, pop, range, grid, scratch),
+            (2, _) => self.evaluate_with::<32, 2, 3, AVX2>(left, right, pop, range, grid, scratch),
+            (_, 1) => self.evaluate_with::<32, 3, 1, AVX2>(left, right, pop, range, grid, scratch),
+            (_, _) => self.evaluate_with::<32, 3, 3, AVX2>(left, right, pop, range, grid, scratch),
         }
     }
 
@@ -178,12 +181,12 @@ impl<'a> Kernel<'a> {
         pop: &mut Population,
         range: Range<usize>,
         grid: &Grid,
+        scratch: &mut Scratch,
     ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
         let mask16 = &const { mask16::<W>(R, C) };
         let (ld, rd) = (self.left.data(), self.right.data());
         let (ls, rs) = (self.left.stride(), self.right.stride());
-        let r = R as isize;
         let rows = 2 * R + 1;
         let row_step = self.row_step;
         pop.project(left, right, range.clone());
@@ -199,45 +202,29 @@ impl<'a> Kernel<'a> {
         let (gl_at, gr_at) = (ls * R + BPP * R + 3, rs * R + BPP * R + 3);
         let roi = roi.unwrap_or((f32::MIN, f32::MAX, f32::MAX, 1.0));
         let (min_h, max_h, max_z, penalty) = roi;
-        // Re-sliced to one length so the compiler drops the bounds checks in the loop.
-        let (from, len) = (range.start, range.len());
+        // Re-sliced to one length so the compiler drops the bounds checks in the loops.
+        // The engine sizes the scratch for its largest evaluation.
+        debug_assert!(range.len() <= scratch.len(), "evaluation scratch too small");
+        let (from, len) = (range.start, range.len().min(scratch.len()));
         let (ul, vl) = (&pop.u_left[from..][..len], &pop.v_left[from..][..len]);
         let (ur, vr) = (&pop.u_right[from..][..len], &pop.v_right[from..][..len]);
         let (ys, zs) = (&pop.y[from..][..len], &pop.z[from..][..len]);
         let fitness = &mut pop.raw_fitness[from..][..len];
         let cells = &mut pop.cell[from..][..len];
-        let mut m = Matches::default();
+        let (lo, ro) = (&mut scratch.lo[..len], &mut scratch.ro[..len]);
+        let (ts, grads) = (&mut scratch.t[..len], &mut scratch.grads[..len]);
+        let ssds = &mut scratch.ssd[..len];
+
+        // 1. Window offsets, sub-pixel weights and sharing cells: straight-line arithmetic over
+        //    the projections, which the compiler vectorises.
         for i in 0..len {
-            // The windows are scattered over two images larger than L2: fetch the windows of a
-            // fly a few places ahead while this one is computed.
-            if let (Some(&a), Some(&b), Some(&c), Some(&d)) = (
-                ul.get(i + PREFETCH_AHEAD),
-                vl.get(i + PREFETCH_AHEAD),
-                ur.get(i + PREFETCH_AHEAD),
-                vr.get(i + PREFETCH_AHEAD),
-            ) {
-                if !(a.is_nan() || c.is_nan()) {
-                    let lo = self
-                        .left
-                        .offset((a + 0.5) as isize - r, (b + 0.5) as isize - r);
-                    let ro = self
-                        .right
-                        .offset((c - 0.5) as isize - r, (d + 0.5) as isize - r);
-                    for j in 0..rows.div_ceil(row_step) {
-                        prefetch::<W>(ld, lo + j * ls * row_step);
-                        prefetch::<W>(rd, ro + j * rs * row_step);
-                    }
-                }
-            }
-            let (ul, vl, ur, vr) = (ul[i], vl[i], ur[i], vr[i]);
-            // NaN marks a fly outside an image (project_batch).
-            if ul.is_nan() || ur.is_nan() {
-                fitness[i] = 0.0;
-                cells[i] = u32::MAX;
-                continue;
-            }
-            // In range by construction: projections lie in [-0.5, size - 0.5).
-            let (uli, vli) = ((ul + 0.5) as isize, (vl + 0.5) as isize);
+            // NaN marks a fly outside an image (project_batch); such a fly gets cell MAX and,
+            // below, fitness 0. Its offsets are computed from harmless stand-ins.
+            let outside = ul[i].is_nan() | ur[i].is_nan();
+            let (ul, vl) = if outside { (0.0, 0.0) } else { (ul[i], vl[i]) };
+            let (ur, vr) = if outside { (0.0, 0.0) } else { (ur[i], vr[i]) };
+            // Projections lie in [-0.5, size - 0.5): every value below is a small integer.
+            let (uli, vli) = (trunc(ul + 0.5), trunc(vl + 0.5));
             // The left window sits on the rounded left pixel, i.e. `fl = ul - round(ul)` away from
             // the projection; the right window is taken at `ur - fl`, interpolated horizontally,
             // so the compared windows show the same scene point and the fitness resolves
@@ -245,36 +232,110 @@ impl<'a> Kernel<'a> {
             let fl = ul - uli as f32;
             let ur_shift = ur - fl;
             let uri = ur_shift.floor();
-            let t = ((ur_shift - uri) * 128.0 + 0.5) as u16;
-            let (uri, vri) = (uri as isize, (vr + 0.5) as isize);
-            cells[i] = grid.cell(ul, vl);
-            let lo = self.left.offset(uli - r, vli - r);
-            let ro = self.right.offset(uri - r, vri - r);
-            let (Some(&gl), Some(&gr)) = (ld.get(lo + gl_at), rd.get(ro + gr_at)) else {
-                fitness[i] = 0.0;
+            ts[i] = trunc((ur_shift - uri) * 128.0 + 0.5) as u16;
+            let (uri, vri) = (trunc(uri), trunc(vr + 0.5));
+            lo[i] = self.left.offset32(uli - R as i32, vli - R as i32);
+            ro[i] = self.right.offset32(uri - R as i32, vri - R as i32);
+            cells[i] = if outside { u32::MAX } else { grid.cell(ul, vl) };
+        }
+
+        // 2. The windows: gradients and SSD, one fly at a time. The windows are scattered over
+        //    two images larger than L2: the rows of the fly a few places ahead are fetched
+        //    while this one is compared.
+        let n_rows = rows.div_ceil(row_step);
+        let (lstep, rstep) = (ls * row_step, rs * row_step);
+        for i in 0..len {
+            if let (Some(&a), Some(&b)) = (lo.get(i + PREFETCH_AHEAD), ro.get(i + PREFETCH_AHEAD)) {
+                for j in 0..n_rows {
+                    prefetch::<W>(ld, a as usize + j * lstep);
+                    prefetch::<W>(rd, b as usize + j * rstep);
+                }
+            }
+            let (l, r) = (lo[i] as usize, ro[i] as usize);
+            // -1 = not compared: outside an image (or, defensively, a window off the buffer).
+            ssds[i] = -1.0;
+            if cells[i] == u32::MAX {
+                continue;
+            }
+            let (Some(&gl), Some(&gr)) = (ld.get(l + gl_at), rd.get(r + gr_at)) else {
                 continue;
             };
-            m.visible += 1;
-            let n_rows = rows.div_ceil(row_step);
-            let (lstep, rstep) = (ls * row_step, rs * row_step);
+            let t = ts[i];
             let ssd = match () {
                 // SAFETY: AVX2 is true only inside `evaluate_avx2`, entered after detection.
                 #[cfg(target_arch = "x86_64")]
                 () if AVX2 => unsafe {
-                    avx2::ssd::<W>(ld, lo, lstep, rd, ro, rstep, n_rows, mask16, t)
+                    avx2::ssd::<W>(ld, l, lstep, rd, r, rstep, n_rows, mask16, t)
                 },
-                () => ssd::<W>(ld, lo, lstep, rd, ro, rstep, n_rows, mask, t),
+                () => ssd::<W>(ld, l, lstep, rd, r, rstep, n_rows, mask, t),
             };
-            m.matched += u32::from(ssd as f32 <= self.match_ssd);
+            grads[i] = gl as f32 * gr as f32;
+            ssds[i] = ssd as f32;
+        }
+
+        // 3. Fitness, region of interest and match counts: straight-line again.
+        let mut m = Matches::default();
+        for i in 0..len {
+            let compared = ssds[i] >= 0.0;
+            let (g, ssd) = if compared {
+                (grads[i], ssds[i])
+            } else {
+                (0.0, 0.0)
+            };
+            m.visible += u32::from(compared);
+            m.matched += u32::from(compared & (ssd <= self.match_ssd));
             // FITNESS_SCALE gl gr / (ssd / |N| + ssd_floor), written with one division.
-            let mut f = gl as f32 * gr as f32 * self.scale / (ssd as f32 + self.floor);
-            if ys[i] > max_h || ys[i] < min_h || zs[i] > max_z {
-                f *= penalty;
-            }
-            fitness[i] = f;
+            let f = g * self.scale / (ssd + self.floor);
+            let out = (ys[i] > max_h) | (ys[i] < min_h) | (zs[i] > max_z);
+            let f = if out { f * penalty } else { f };
+            fitness[i] = if compared { f } else { 0.0 };
         }
         m
     }
+}
+
+/// Per-fly intermediate values of an evaluation, sized once (no allocation per generation).
+#[derive(Debug, Clone)]
+pub(crate) struct Scratch {
+    /// Byte offsets of each fly's left and right windows.
+    lo: Vec<u32>,
+    ro: Vec<u32>,
+    /// Sub-pixel weight of the right window, /128.
+    t: Vec<u16>,
+    /// `gl * gr` of the compared flies.
+    grads: Vec<f32>,
+    /// SSD of the compared flies, -1 for the others.
+    ssd: Vec<f32>,
+}
+
+impl Scratch {
+    /// Room for evaluating `flies` flies at once.
+    pub(crate) fn new(flies: usize) -> Self {
+        Self {
+            lo: vec![0; flies],
+            ro: vec![0; flies],
+            t: vec![0; flies],
+            grads: vec![0.0; flies],
+            ssd: vec![0.0; flies],
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.lo.len()
+    }
+}
+
+/// `x as i32` for the small coordinates of the evaluation. Clamped first (NaN to a bound too),
+/// so the unchecked conversion is always defined; values within +-2^24 are unchanged. Unlike a
+/// saturating `as`, this vectorises.
+#[inline(always)]
+fn trunc(x: f32) -> i32 {
+    const BOUND: f32 = 16_777_216.0;
+    // Not `clamp`: it keeps NaN, which must not reach the conversion.
+    #[allow(clippy::manual_clamp)]
+    let x = x.max(-BOUND).min(BOUND);
+    // SAFETY: x is finite and within +-2^24 (the line above; `max` maps NaN to -2^24).
+    unsafe { x.to_int_unchecked::<i32>() }
 }
 
 /// How many flies ahead the evaluation prefetches windows.

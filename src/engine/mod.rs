@@ -240,6 +240,8 @@ pub struct Engine {
     /// Probes evaluated in the latest generation.
     probed: usize,
     sharing: sharing::Grid,
+    /// Per-fly intermediates of an evaluation (population or probes, whichever is larger).
+    scratch: fitness::Scratch,
     rng: Xoshiro256PlusPlus,
     frame_size: (u32, u32, u32, u32),
     /// Id of the frame the population was last evaluated against.
@@ -266,6 +268,9 @@ impl Engine {
                 n,
             ),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
+            scratch: fitness::Scratch::new(
+                n.max(params.immigrants() * params.immigrant_probes as usize),
+            ),
             left,
             right,
             sampler,
@@ -348,6 +353,7 @@ impl Engine {
             &mut self.pop,
             from..n,
             &self.sharing,
+            &mut self.scratch,
         );
         self.unevaluated_from = n;
         self.sharing.apply(&mut self.pop);
@@ -535,6 +541,7 @@ impl Engine {
                 &mut self.probe,
                 0..probing * k,
                 &self.sharing,
+                &mut self.scratch,
             );
             for (j, &slot) in self.probe_slot[..probing].iter().enumerate() {
                 let fit = &self.probe.raw_fitness[j * k..(j + 1) * k];

@@ -172,7 +172,14 @@ fn new_frame_reevaluates_every_fly() {
     let kernel = Kernel::new(&b, e.params());
     let mut fresh = e.population().clone();
     let n = fresh.len();
-    kernel.evaluate(&e.left, &e.right, &mut fresh, 0..n, &e.sharing);
+    kernel.evaluate(
+        &e.left,
+        &e.right,
+        &mut fresh,
+        0..n,
+        &e.sharing,
+        &mut fitness::Scratch::new(n),
+    );
     assert_eq!(fresh.raw_fitness, e.population().raw_fitness);
 }
 
@@ -539,7 +546,14 @@ fn every_instruction_set_gives_the_same_fitness() {
         let mut pop = e.pop.clone();
         let kernel = Kernel::new(&frame, &e.params).with_isa(isa);
         let n = pop.len();
-        let m = kernel.evaluate(&e.left, &e.right, &mut pop, 0..n, &e.sharing);
+        let m = kernel.evaluate(
+            &e.left,
+            &e.right,
+            &mut pop,
+            0..n,
+            &e.sharing,
+            &mut fitness::Scratch::new(n),
+        );
         let bits: Vec<u32> = [&pop.raw_fitness, &pop.u_left, &pop.v_left, &pop.u_right]
             .iter()
             .flat_map(|v| v.iter().map(|f| f.to_bits()))
