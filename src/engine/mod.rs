@@ -413,9 +413,17 @@ impl Engine {
         let sum = |v: &[f32]| -> f64 {
             v.chunks(64)
                 .map(|c| {
+                    // Lane j takes elements j, j + 8, ...: eight independent sums that
+                    // vectorise.
                     let mut lanes = [0.0f32; 8];
-                    for (k, x) in c.iter().enumerate() {
-                        lanes[k % 8] += x;
+                    let mut eights = c.chunks_exact(8);
+                    for q in &mut eights {
+                        for j in 0..8 {
+                            lanes[j] += q[j];
+                        }
+                    }
+                    for (j, x) in eights.remainder().iter().enumerate() {
+                        lanes[j] += x;
                     }
                     lanes.iter().map(|&x| x as f64).sum::<f64>()
                 })

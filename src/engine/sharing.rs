@@ -119,9 +119,7 @@ impl Mates {
                 self.start[c as usize] += 1;
             }
         }
-        for c in (1..=n_cells).rev() {
-            self.start[c] = self.start[c - 1];
-        }
+        self.start.copy_within(0..n_cells, 1);
         self.start[0] = 0;
     }
 
