@@ -20,8 +20,8 @@
 //!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
 //!    that `guided_immigration` of them go where the left image changed since the previous
 //!    frame ([`change`]): each takes the strongest gradient of a few points of a changed block
-//!    and keeps the fittest of `immigrant_probes` depths along that ray, evaluated on the
-//!    current frame.
+//!    and keeps the fittest of `immigrant_probes` depths along that ray (one per stratum of
+//!    inverse depth), then of 8 more around it, evaluated on the current frame.
 //! 3. **Evaluation** ([`fitness`]): `F = g_L g_R / (SSD + floor)` at the two projections.
 //! 4. **Road region of interest** (paper 5.1): outside it, F is multiplied by `roi.penalty`.
 //! 5. **Sharing** ([`sharing`]): F is divided by `n^sharing_exponent`, n being the number of flies
@@ -183,7 +183,8 @@ pub struct GenerationStats {
     pub matched: f64,
     /// Flies evaluated in this generation.
     pub evaluated: usize,
-    /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes`).
+    /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes` + 8
+    /// each).
     pub probes: usize,
     /// Flies whose projection falls inside both images.
     pub visible: usize,
@@ -212,6 +213,17 @@ struct Sampler {
     c: [f32; 3],
 }
 
+/// Second-stage depth probes of a guided immigrant, around its best first-stage probe.
+const REFINE_PROBES: usize = 8;
+
+/// Index and value of the first of the fittest (deterministic); (0, 0) if none is positive.
+fn first_fittest(fit: &[f32]) -> (usize, f32) {
+    fit.iter().enumerate().fold(
+        (0, 0.0f32),
+        |acc, (s, &v)| if v > acc.1 { (s, v) } else { acc },
+    )
+}
+
 /// Points of a changed block looked at to place one guided immigrant.
 const PIXEL_CANDIDATES: usize = 8;
 
@@ -235,6 +247,10 @@ pub struct Engine {
     movers: Vec<u32>,
     /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
     probe: Population,
+    /// Inverse-depth parameter of each first-stage probe along its ray.
+    probe_t: Vec<f32>,
+    /// Ray (normalised left coordinates) and inverse-depth range of each probed immigrant.
+    probe_ray: Vec<[f32; 4]>,
     /// Population slot of each probed immigrant.
     probe_slot: Vec<u32>,
     /// Probes evaluated in the latest generation.
@@ -269,7 +285,7 @@ impl Engine {
             ),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
             scratch: fitness::Scratch::new(
-                n.max(params.immigrants() * params.immigrant_probes as usize),
+                n.max(params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES)),
             ),
             left,
             right,
@@ -286,7 +302,11 @@ impl Engine {
             chosen: vec![false; n],
             holes: vec![0; n],
             movers: vec![0; n],
-            probe: Population::with_len(params.immigrants() * params.immigrant_probes as usize),
+            probe: Population::with_len(
+                params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES),
+            ),
+            probe_t: vec![0.0; params.immigrants() * params.immigrant_probes as usize],
+            probe_ray: vec![[0.0; 4]; params.immigrants()],
             probe_slot: vec![0; params.immigrants()],
             probed: 0,
             frame_size: (
@@ -523,8 +543,10 @@ impl Engine {
                             self.probe.x[base + s] = p[0];
                             self.probe.y[base + s] = p[1];
                             self.probe.z[base + s] = p[2];
+                            self.probe_t[base + s] = t;
                         }
                         self.probe_slot[probing] = i as u32;
+                        self.probe_ray[probing] = [xn, yn, inv.0, inv.1];
                         probing += 1;
                         self.sampler.at(xn, yn, 1.0 / lerp(inv, 0.5))
                     }
@@ -551,14 +573,43 @@ impl Engine {
                 &self.sharing,
                 &mut self.scratch,
             );
+            // Second stage: REFINE_PROBES depths evenly spread over one stratum centred on the
+            // best first-stage probe. A stratum spans several pixels of disparity and the
+            // window matches within about one, so the first stage finds the right stratum more
+            // often than the right depth.
+            let fine = probing * k;
+            for j in 0..probing {
+                let best = first_fittest(&self.probe.raw_fitness[j * k..(j + 1) * k]).0;
+                let t0 = self.probe_t[j * k + best];
+                let [xn, yn, i0, i1] = self.probe_ray[j];
+                for q in 0..REFINE_PROBES {
+                    let t = t0 + ((q as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) / k as f32;
+                    let p = self
+                        .sampler
+                        .at(xn, yn, 1.0 / lerp((i0, i1), t.clamp(0.0, 1.0)));
+                    let at = fine + j * REFINE_PROBES + q;
+                    self.probe.x[at] = p[0];
+                    self.probe.y[at] = p[1];
+                    self.probe.z[at] = p[2];
+                }
+            }
+            self.probed += probing * REFINE_PROBES;
+            kernel.evaluate(
+                &self.left,
+                &self.right,
+                &mut self.probe,
+                fine..fine + probing * REFINE_PROBES,
+                &self.sharing,
+                &mut self.scratch,
+            );
             for (j, &slot) in self.probe_slot[..probing].iter().enumerate() {
-                let fit = &self.probe.raw_fitness[j * k..(j + 1) * k];
-                // First of the fittest: deterministic, and the middle probe stays if all fail.
-                let (best, &f) = fit.iter().enumerate().fold((0, &0.0f32), |acc, (s, v)| {
-                    if *v > *acc.1 { (s, v) } else { acc }
-                });
-                if f > 0.0 {
-                    let (q, i) = (j * k + best, slot as usize);
+                let (b1, f1) = first_fittest(&self.probe.raw_fitness[j * k..(j + 1) * k]);
+                let r = fine + j * REFINE_PROBES;
+                let (b2, f2) = first_fittest(&self.probe.raw_fitness[r..r + REFINE_PROBES]);
+                // The middle probe stays if all fail.
+                let q = if f2 > f1 { r + b2 } else { j * k + b1 };
+                if f1.max(f2) > 0.0 {
+                    let i = slot as usize;
                     self.pop.x[i] = self.probe.x[q];
                     self.pop.y[i] = self.probe.y[q];
                     self.pop.z[i] = self.probe.z[q];

@@ -47,9 +47,11 @@ pub struct EngineParams {
     pub guided_immigration: f64,
     /// Depths tried along the ray of each guided immigrant before it joins the population: the
     /// probes are spread over the ray's inverse-depth range inside the search range and the road
-    /// region of interest (one per stratum), evaluated on the current frame, and the fittest is
-    /// kept. 1 is the paper's immigrant (one random depth). Costs `probes - 1` evaluations per
-    /// guided immigrant, only while the image changes.
+    /// region of interest (one per stratum), evaluated on the current frame; 8 more are spread
+    /// over one stratum around the fittest (a stratum spans several pixels of disparity, the
+    /// window matches within about one), and the fittest of all is kept. 1 is the paper's
+    /// immigrant (one random depth, no second stage). Costs `probes + 8` evaluations per guided
+    /// immigrant, only while the image changes.
     pub immigrant_probes: u32,
     /// Fraction of crossovers whose second parent is drawn from the first parent's sharing
     /// cell (mating restriction) rather than from all survivors. 0 is the paper's operator; 1

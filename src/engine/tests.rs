@@ -449,11 +449,12 @@ fn probing_immigrants_land_at_the_depth_that_matches() {
     assert_eq!(plain_probes, 0, "one probe is the paper's immigrant");
     assert_eq!(
         probes,
-        16 * params(5000, 5).immigrants(),
-        "every guided immigrant probed"
+        (16 + 8) * params(5000, 5).immigrants(),
+        "every guided immigrant probed, in two stages"
     );
     assert!(
-        probed >= 3 * plain.max(1) && probed >= 20,
+        // One stage of 16 probes measured 44 here; the second stage, 134.
+        probed >= 3 * plain.max(1) && probed >= 100,
         "immigrants within 10 cm of the wall: {probed} with 16 probes vs {plain} without"
     );
 }
