@@ -1,6 +1,7 @@
 //! One generation of the fly engine (5000 flies, 640x480 hw-mock pedestrian-4m), with and
-//! without a new frame. `cargo bench --bench generation`; `flyd bench` reports the same in
-//! the proportions the daemon runs them.
+//! without a new frame, and the preparation of one 640x480 RGB frame (what each capture
+//! thread does per frame). `cargo bench --bench generation`; `flyd bench` reports the
+//! generations in the proportions the daemon runs them.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use flyd::engine::{Engine, EngineParams};
@@ -40,5 +41,20 @@ fn generation(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, generation);
+fn prepare(c: &mut Criterion) {
+    let scenario = hw_mock::Scenario::by_name("pedestrian-4m").expect("scenario");
+    let mut mock = MockStereo::new(scenario, 640, 480).expect("mock");
+    let (left, _) = mock.frame(0).expect("render");
+    let pixels = left.to_vec();
+    let mut image = PreparedImage::new(640, 480).expect("image");
+    c.bench_function("prepare/640x480_rgb", |b| {
+        b.iter(|| {
+            image
+                .prepare(PixelFormat::Rgb8, black_box(&pixels))
+                .expect("prepare")
+        })
+    });
+}
+
+criterion_group!(benches, generation, prepare);
 criterion_main!(benches);
