@@ -25,7 +25,7 @@ fn key(f: f32) -> u32 {
 impl Selector {
     pub(crate) fn new(flies: usize) -> Self {
         Self {
-            hist: vec![0; 4 * BINS],
+            hist: vec![0; BINS],
             boundary: Vec::with_capacity(flies),
         }
     }
@@ -34,24 +34,9 @@ impl Selector {
     pub(crate) fn select(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
         let n = fitness.len().min(chosen.len());
         let keep = keep.min(n);
-        // Four interleaved histograms, summed after: fitness values cluster in a few bins, and
-        // consecutive increments of one counter would wait on each other's store.
         self.hist.fill(0);
-        let (h0, rest) = self.hist.split_at_mut(BINS);
-        let (h1, rest) = rest.split_at_mut(BINS);
-        let (h2, h3) = rest.split_at_mut(BINS);
-        let mut quads = fitness[..n].chunks_exact(4);
-        for q in &mut quads {
-            h0[(key(q[0]) >> SHIFT) as usize] += 1;
-            h1[(key(q[1]) >> SHIFT) as usize] += 1;
-            h2[(key(q[2]) >> SHIFT) as usize] += 1;
-            h3[(key(q[3]) >> SHIFT) as usize] += 1;
-        }
-        for &f in quads.remainder() {
-            h0[(key(f) >> SHIFT) as usize] += 1;
-        }
-        for b in 0..BINS {
-            h0[b] += h1[b] + h2[b] + h3[b];
+        for &f in &fitness[..n] {
+            self.hist[(key(f) >> SHIFT) as usize] += 1;
         }
         // The bin holding the keep-th best, and how many flies rank strictly above it.
         let (mut bin, mut above) = (BINS - 1, 0usize);
