@@ -22,6 +22,8 @@ pub(crate) struct ChangeMap {
     cdf: Vec<f32>,
     pub(crate) total: f32,
     primed: bool,
+    /// Blocks per row.
+    wide: usize,
 }
 
 impl ChangeMap {
@@ -33,6 +35,7 @@ impl ChangeMap {
             cdf: vec![0.0; blocks],
             total: 0.0,
             primed: false,
+            wide: (width as usize).div_ceil(BLOCK),
         }
     }
 
@@ -63,6 +66,21 @@ impl ChangeMap {
         }
         self.total = acc;
         self.primed = true;
+    }
+
+    /// Whether left pixel `(u, v)` lies in a block that changed (false outside the image or for
+    /// NaN).
+    #[inline]
+    pub(crate) fn changed_at(&self, u: f32, v: f32) -> bool {
+        if !(u >= 0.0 && v >= 0.0) {
+            return false;
+        }
+        let (bx, by) = (u as usize / BLOCK, v as usize / BLOCK);
+        bx < self.wide
+            && self
+                .weight
+                .get(by * self.wide + bx)
+                .is_some_and(|&w| w > 0.0)
     }
 
     /// A block drawn in proportion to its change weight, from `u` uniform in [0, 1).

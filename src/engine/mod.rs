@@ -14,7 +14,9 @@
 //! 1. **Selection** (elitist, deterministic): the best `survival_rate` of the flies by shared
 //!    fitness are kept, found in O(N) with a selection (not a sort).
 //! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
-//!    (l ~ U[0,1]; the second parent from the first one's sharing cell with probability
+//!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, from the survivors in
+//!    blocks where the left image changed ([`change`]) when there are some, from all survivors
+//!    otherwise; the second from the first one's sharing cell with probability
 //!    `local_mating`, from all survivors otherwise), then Gaussian mutation of each coordinate
 //!    with probability `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last
 //!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
@@ -245,6 +247,8 @@ pub struct Engine {
     /// Compaction scratch: non-survivor slots below `survivors()`, survivors above it.
     holes: Vec<u32>,
     movers: Vec<u32>,
+    /// Survivors in changed blocks: the first parents of guided breeding.
+    breeders: Vec<u32>,
     /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
     probe: Population,
     /// Inverse-depth parameter of each first-stage probe along its ray.
@@ -302,6 +306,7 @@ impl Engine {
             chosen: vec![false; n],
             holes: vec![0; n],
             movers: vec![0; n],
+            breeders: vec![0; n],
             probe: Population::with_len(
                 params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES),
             ),
@@ -488,6 +493,20 @@ impl Engine {
         if self.params.local_mating > 0.0 {
             self.mates.index(&self.pop.cell[..keep]);
         }
+        // Survivors where the image changed (none on a static scene: then no extra draws).
+        let mut breeders = 0;
+        if self.params.guided_breeding > 0.0 && self.change.total > 0.0 {
+            for i in 0..keep {
+                if let Some(slot) = self.breeders.get_mut(breeders) {
+                    *slot = i as u32;
+                }
+                breeders += usize::from(
+                    self.change
+                        .changed_at(self.pop.u_left[i], self.pop.v_left[i]),
+                );
+            }
+        }
+        let guided = (self.params.guided_breeding * 4_294_967_296.0).min(u32::MAX as f64) as u32;
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
         let local = (self.params.local_mating * 4_294_967_296.0).min(u32::MAX as f64) as u32;
@@ -495,7 +514,13 @@ impl Engine {
         for i in keep..immigrants_from {
             let r = self.rng.next_u64();
             // Lemire's multiply-shift: unbiased to within keep / 2^32.
-            let a = (((r & 0xffff_ffff) * keep as u64) >> 32) as usize;
+            let mut a = (((r & 0xffff_ffff) * keep as u64) >> 32) as usize;
+            if breeders > 0 {
+                let g = self.rng.next_u64();
+                if (g as u32) < guided {
+                    a = self.breeders[(((g >> 32) * breeders as u64) >> 32) as usize] as usize;
+                }
+            }
             let r2 = self.rng.next_u64();
             let b = if (r2 as u32) < local {
                 self.mates

@@ -58,6 +58,12 @@ pub struct EngineParams {
     /// (default) lets a fly found on a new obstacle breed there, which is what makes the
     /// population react in ~10 generations instead of ~150 (see README).
     pub local_mating: f64,
+    /// Fraction of offspring whose first parent is drawn from the survivors in blocks where the
+    /// left image changed (see `guided_immigration`), when some survivor is in one; the others
+    /// draw it from all survivors (the paper). Guided immigrants find a new obstacle; this
+    /// lets the few that did breed faster than the converged flies elsewhere. Inert on a static
+    /// scene, and nearly uniform when everything moves.
+    pub guided_breeding: f64,
     /// Probability that each coordinate of an offspring is mutated (paper: 40 %).
     pub mutation_rate: f64,
     /// Standard deviation of the Gaussian mutation, relative to the fly's depth: a fly at z metres
@@ -98,6 +104,7 @@ impl Default for EngineParams {
             guided_immigration: 0.75,
             immigrant_probes: 16,
             local_mating: 1.0,
+            guided_breeding: 0.75,
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
             neighbourhood_radius: 3,
@@ -145,6 +152,7 @@ impl EngineParams {
         unit("mutation_rate", self.mutation_rate)?;
         unit("local_mating", self.local_mating)?;
         unit("guided_immigration", self.guided_immigration)?;
+        unit("guided_breeding", self.guided_breeding)?;
         if !(1..=MAX_PROBES).contains(&self.immigrant_probes) {
             return err(
                 "immigrant_probes",

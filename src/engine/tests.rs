@@ -55,13 +55,31 @@ fn texture(x: f64, y: f64, cell: f64, seed: u64) -> f64 {
 
 /// RGB image of a textured wall at `depth` metres (plane z = depth) seen by `cam`.
 fn render_wall(cam: &Camera, depth: f64, seed: u64) -> Vec<u8> {
+    render_wall_and_panel(cam, depth, seed, None)
+}
+
+/// A panel in front of the wall: `[x0, x1, y0, y1, z]` (a rectangle of the plane z).
+type Panel = [f64; 5];
+
+/// [`render_wall`] with an optional `panel` in front of the wall, textured like it.
+fn render_wall_and_panel(cam: &Camera, depth: f64, seed: u64, panel: Option<Panel>) -> Vec<u8> {
     let (w, h) = (cam.width(), cam.height());
     let mut out = Vec::with_capacity((w * h * 3) as usize);
     for v in 0..h {
         for u in 0..w {
             let (o, d) = cam.ray_from_pixel(u as f64, v as f64).expect("ray");
-            let t = (depth - o.z) / d.z;
-            let p = o + d * t;
+            let at = |z: f64| o + d * ((z - o.z) / d.z);
+            let p = match panel {
+                Some([x0, x1, y0, y1, z]) => {
+                    let q = at(z);
+                    if (x0..x1).contains(&q.x) && (y0..y1).contains(&q.y) {
+                        q
+                    } else {
+                        at(depth)
+                    }
+                }
+                None => at(depth),
+            };
             let base =
                 texture(p.x, p.y, 0.03, seed) * 0.6 + texture(p.x, p.y, 0.11, seed + 1) * 0.4;
             for c in 0..3 {
@@ -82,6 +100,16 @@ fn wall_frame(rig: &StereoRig, depth: f64, seed: u64, id: u64) -> StereoFrame {
             &render_wall(cam, depth, seed),
         )
         .expect("frame")
+    };
+    StereoFrame::new(prep(&rig.left), prep(&rig.right), id)
+}
+
+/// The wall at `depth` with `panel` in front of it.
+fn panel_frame(rig: &StereoRig, depth: f64, panel: Panel, id: u64) -> StereoFrame {
+    let prep = |cam: &Camera| {
+        let px = render_wall_and_panel(cam, depth, 3, Some(panel));
+        PreparedImage::from_pixels(cam.width(), cam.height(), PixelFormat::Rgb8, &px)
+            .expect("frame")
     };
     StereoFrame::new(prep(&rig.left), prep(&rig.right), id)
 }
@@ -456,6 +484,43 @@ fn probing_immigrants_land_at_the_depth_that_matches() {
         // One stage of 16 probes measured 44 here; the second stage, 134.
         probed >= 3 * plain.max(1) && probed >= 100,
         "immigrants within 10 cm of the wall: {probed} with 16 probes vs {plain} without"
+    );
+}
+
+#[test]
+fn guided_breeding_multiplies_the_flies_on_what_appeared() {
+    // A converged population on a wall at 8 m; then a panel appears at 4 m over part of the
+    // image. Survivors where the image changed breed, so flies on the panel multiply faster.
+    let rig = rig();
+    let wall = wall_frame(&rig, 8.0, 3, 0);
+    let panel = [-0.9, 0.1, 0.4, 1.4, 4.0];
+    let with_panel = [1, 2, 3].map(|id| panel_frame(&rig, 8.0, panel, id));
+    let on_panel = |breeding: f64| {
+        let mut p = params(5000, 7);
+        p.guided_breeding = breeding;
+        let mut e = Engine::new(&rig, p).expect("engine");
+        for _ in 0..10 {
+            e.step(&wall).expect("step");
+        }
+        let mut counts = vec![];
+        for f in &with_panel {
+            e.step(f).expect("step");
+            let pop = e.population();
+            counts.push(
+                (0..pop.len())
+                    .filter(|&i| (pop.z[i] - 4.0).abs() < 0.1 && pop.raw_fitness[i] > 0.0)
+                    .count(),
+            );
+        }
+        counts
+    };
+    let (paper, guided) = (on_panel(0.0), on_panel(0.75));
+    eprintln!(
+        "flies on the panel, generation by generation: {paper:?} without, {guided:?} with guided breeding"
+    );
+    assert!(
+        guided[2] >= 2 * paper[2],
+        "flies on the panel after 3 generations: {guided:?} with guided breeding, {paper:?} without"
     );
 }
 
