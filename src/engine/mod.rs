@@ -249,6 +249,10 @@ pub struct Engine {
     movers: Vec<u32>,
     /// Survivors in changed blocks: the first parents of guided breeding.
     breeders: Vec<u32>,
+    /// Mutation coin tosses of each offspring (16 bits a coordinate) and the offspring a
+    /// coordinate's mutation moves.
+    masks: Vec<u64>,
+    hits: Vec<u32>,
     /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
     probe: Population,
     /// Inverse-depth parameter of each first-stage probe along its ray.
@@ -307,6 +311,8 @@ impl Engine {
             holes: vec![0; n],
             movers: vec![0; n],
             breeders: vec![0; n],
+            masks: vec![0; n],
+            hits: vec![0; n],
             probe: Population::with_len(
                 params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES),
             ),
@@ -531,16 +537,31 @@ impl Engine {
             };
             let pop = &self.pop;
             let l = unit_f32(self.rng.next_u32());
-            let mut c = crossover(
+            let c = crossover(
                 [pop.x[a], pop.y[a], pop.z[a]],
                 [pop.x[b], pop.y[b], pop.z[b]],
                 l,
             );
-            mutate(&mut c, &mut self.rng, threshold, sigma);
             self.pop.x[i] = c[0];
             self.pop.y[i] = c[1];
             self.pop.z[i] = c[2];
+            if let Some(m) = self.masks.get_mut(i - keep) {
+                *m = self.rng.next_u64();
+            }
         }
+        let r = keep..immigrants_from;
+        mutate(
+            [
+                &mut self.pop.x[r.clone()],
+                &mut self.pop.y[r.clone()],
+                &mut self.pop.z[r],
+            ],
+            &self.masks,
+            &mut self.hits,
+            &mut self.rng,
+            threshold,
+            sigma,
+        );
         self.immigrate(immigrants_from, kernel);
         self.unevaluated_from = keep;
     }
@@ -702,18 +723,57 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
     ]
 }
 
-/// Gaussian mutation: each coordinate moves with probability `threshold / 65536` by
-/// N(0, (sigma * max(z, 1))^2). One 64-bit draw decides all three coordinates (16 bits each).
-#[inline]
-pub fn mutate<R: Rng>(c: &mut [f32; 3], rng: &mut R, threshold: u32, sigma: f32) {
-    let m = rng.next_u64();
-    let scale = sigma * c[2].max(1.0);
-    for (k, coord) in c.iter_mut().enumerate() {
-        if ((m >> (16 * k)) & 0xffff) < threshold as u64 {
+/// Gaussian mutation of flies `[x, y, z]`: coordinate k of fly j moves with probability
+/// `threshold / 65536` (bits 16k..16k+16 of `masks[j]` below it) by rand_distr's
+/// `StandardNormal` times `sigma * max(z, 1)`, z before the mutation. A coin toss per coordinate
+/// is a branch no predictor guesses, so each coordinate is done in two passes: the indices of
+/// the flies it moves are gathered without branches (into `hits`, one per fly), then only
+/// those draw a normal. Flies beyond `masks` or `hits` are left as they are.
+pub fn mutate<R: Rng>(
+    [x, y, z]: [&mut [f32]; 3],
+    masks: &[u64],
+    hits: &mut [u32],
+    rng: &mut R,
+    threshold: u32,
+    sigma: f32,
+) {
+    let n = x
+        .len()
+        .min(y.len())
+        .min(z.len())
+        .min(masks.len())
+        .min(hits.len());
+    let t = u64::from(threshold);
+    // z last: the scale of every coordinate is the depth before the mutation.
+    for (k, coord) in [x, y].into_iter().enumerate() {
+        let count = gather_hits(&masks[..n], 16 * k as u32, t, hits);
+        for &j in &hits[..count] {
+            let j = j as usize;
             let g: f32 = StandardNormal.sample(rng);
-            *coord += scale * g;
+            coord[j] += sigma * z[j].max(1.0) * g;
         }
     }
+    let count = gather_hits(&masks[..n], 32, t, hits);
+    for &j in &hits[..count] {
+        let j = j as usize;
+        let g: f32 = StandardNormal.sample(rng);
+        z[j] += sigma * z[j].max(1.0) * g;
+    }
+}
+
+/// Writes the indices j whose 16 bits of `masks[j]` at `shift` are below `t` to the front of
+/// `hits` (without branches: every index is written, the cursor advances on a hit); returns
+/// how many.
+#[inline]
+fn gather_hits(masks: &[u64], shift: u32, t: u64, hits: &mut [u32]) -> usize {
+    let mut count = 0;
+    for (j, &m) in masks.iter().enumerate() {
+        if let Some(h) = hits.get_mut(count) {
+            *h = j as u32;
+        }
+        count += usize::from((m >> shift) & 0xffff < t);
+    }
+    count.min(hits.len())
 }
 
 /// The paper's warning of one fly, with its clamps.

@@ -288,25 +288,50 @@ fn offspring_without_mutation_lie_between_two_survivors() {
 fn mutation_rate_and_scale() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
     let threshold = (0.4f64 * 65536.0).round() as u32;
-    let (mut moved, mut sq, trials) = (0usize, 0.0f64, 20000);
-    for _ in 0..trials {
-        let mut c = [0.0, 0.0, 5.0];
-        mutate(&mut c, &mut rng, threshold, 0.02);
-        for (k, v) in c.iter().enumerate() {
-            let d = v - [0.0, 0.0, 5.0][k];
-            if d != 0.0 {
+    let n = 20000;
+    let (mut x, mut y, mut z) = (vec![0.0; n], vec![0.0; n], vec![5.0; n]);
+    let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+    let mut hits = vec![0; n];
+    mutate(
+        [&mut x, &mut y, &mut z],
+        &masks,
+        &mut hits,
+        &mut rng,
+        threshold,
+        0.02,
+    );
+    let (mut moved, mut sq) = (0usize, 0.0f64);
+    for (j, m) in masks.iter().enumerate() {
+        for (k, d) in [x[j], y[j], z[j] - 5.0].into_iter().enumerate() {
+            let hit = (m >> (16 * k)) & 0xffff < u64::from(threshold);
+            assert_eq!(
+                d != 0.0,
+                hit,
+                "coordinate {k} of fly {j} moves iff its bits say so"
+            );
+            if hit {
                 moved += 1;
-                sq += (d as f64).powi(2);
+                sq += f64::from(d).powi(2);
             }
         }
     }
-    let rate = moved as f64 / (3 * trials) as f64;
+    let rate = moved as f64 / (3 * n) as f64;
     assert!((rate - 0.4).abs() < 0.01, "mutation rate {rate}");
     let sigma = (sq / moved as f64).sqrt();
     assert!((sigma - 0.1).abs() < 0.005, "sigma {sigma} for 0.02 * 5 m");
-    let mut c = [1.0, 2.0, 3.0];
-    mutate(&mut c, &mut rng, 0, 0.02);
-    assert_eq!(c, [1.0, 2.0, 3.0], "rate 0 never mutates");
+    let (mut x, mut y, mut z) = (vec![1.0; 4], vec![2.0; 4], vec![3.0; 4]);
+    mutate(
+        [&mut x, &mut y, &mut z],
+        &masks[..4],
+        &mut hits,
+        &mut rng,
+        0,
+        0.02,
+    );
+    assert!(
+        x == [1.0; 4] && y == [2.0; 4] && z == [3.0; 4],
+        "rate 0 never mutates"
+    );
 }
 
 #[test]
