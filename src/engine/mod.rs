@@ -479,19 +479,8 @@ impl Engine {
         // hole the k-th such survivor. There are exactly as many of one as of the other.
         // Survivors already below `keep` (the usual case for long-lived flies) do not move. The
         // two lists are built without branches (a survivor flag is a coin toss to a predictor).
-        let (mut holes, mut movers) = (0, 0);
-        for (dst, &c) in self.chosen[..keep].iter().enumerate() {
-            if let Some(slot) = self.holes.get_mut(holes) {
-                *slot = dst as u32;
-            }
-            holes += usize::from(!c);
-        }
-        for (src, &c) in self.chosen[keep..n].iter().enumerate() {
-            if let Some(slot) = self.movers.get_mut(movers) {
-                *slot = (keep + src) as u32;
-            }
-            movers += usize::from(c);
-        }
+        let holes = gather(self.chosen[..keep].iter().map(|&c| !c), 0, &mut self.holes);
+        let movers = gather(self.chosen[keep..n].iter().copied(), keep, &mut self.movers);
         for k in 0..holes.min(movers) {
             self.pop
                 .move_fly(self.holes[k] as usize, self.movers[k] as usize);
@@ -500,31 +489,25 @@ impl Engine {
             self.mates.index(&self.pop.cell[..keep]);
         }
         // Survivors where the image changed (none on a static scene: then no extra draws).
-        let mut breeders = 0;
-        if self.params.guided_breeding > 0.0 && self.change.total > 0.0 {
-            for i in 0..keep {
-                if let Some(slot) = self.breeders.get_mut(breeders) {
-                    *slot = i as u32;
-                }
-                breeders += usize::from(
-                    self.change
-                        .changed_at(self.pop.u_left[i], self.pop.v_left[i]),
-                );
-            }
-        }
-        let guided = (self.params.guided_breeding * 4_294_967_296.0).min(u32::MAX as f64) as u32;
+        let breeders = if self.params.guided_breeding > 0.0 && self.change.total > 0.0 {
+            let (change, pop) = (&self.change, &self.pop);
+            let changed = (0..keep).map(|i| change.changed_at(pop.u_left[i], pop.v_left[i]));
+            gather(changed, 0, &mut self.breeders)
+        } else {
+            0
+        };
+        let guided = unit_threshold(self.params.guided_breeding);
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
-        let local = (self.params.local_mating * 4_294_967_296.0).min(u32::MAX as f64) as u32;
+        let local = unit_threshold(self.params.local_mating);
         let sigma = self.params.mutation_sigma as f32;
         for i in keep..immigrants_from {
             let r = self.rng.next_u64();
-            // Lemire's multiply-shift: unbiased to within keep / 2^32.
-            let mut a = (((r & 0xffff_ffff) * keep as u64) >> 32) as usize;
+            let mut a = lemire(r as u32, keep);
             if breeders > 0 {
                 let g = self.rng.next_u64();
                 if (g as u32) < guided {
-                    a = self.breeders[(((g >> 32) * breeders as u64) >> 32) as usize] as usize;
+                    a = self.breeders[lemire((g >> 32) as u32, breeders)] as usize;
                 }
             }
             let r2 = self.rng.next_u64();
@@ -533,7 +516,7 @@ impl Engine {
                     .pick(self.pop.cell[a], (r2 >> 32) as u32)
                     .unwrap_or(a)
             } else {
-                (((r >> 32) * keep as u64) >> 32) as usize
+                lemire((r >> 32) as u32, keep)
             };
             let pop = &self.pop;
             let l = unit_f32(self.rng.next_u32());
@@ -571,7 +554,7 @@ impl Engine {
     /// Guided immigrants (drawn where the image changed) probe `immigrant_probes` depths along
     /// their ray against the current frame and keep the fittest.
     fn immigrate(&mut self, from: usize, kernel: &Kernel) {
-        let guided = (self.params.guided_immigration * 4_294_967_296.0).min(u32::MAX as f64) as u32;
+        let guided = unit_threshold(self.params.guided_immigration);
         let k = self.params.immigrant_probes as usize;
         self.probed = 0;
         let mut probing = 0;
@@ -743,37 +726,50 @@ pub fn mutate<R: Rng>(
         .min(z.len())
         .min(masks.len())
         .min(hits.len());
-    let t = u64::from(threshold);
-    // z last: the scale of every coordinate is the depth before the mutation.
-    for (k, coord) in [x, y].into_iter().enumerate() {
-        let count = gather_hits(&masks[..n], 16 * k as u32, t, hits);
+    for k in 0..3 {
+        let coin = |&m: &u64| (m >> (16 * k)) & 0xffff < u64::from(threshold);
+        let count = gather(masks[..n].iter().map(coin), 0, hits);
         for &j in &hits[..count] {
             let j = j as usize;
+            // z is mutated last: every coordinate's scale is the depth before the mutation.
+            let scale = sigma * z[j].max(1.0);
+            let c = match k {
+                0 => &mut x[j],
+                1 => &mut y[j],
+                _ => &mut z[j],
+            };
             let g: f32 = StandardNormal.sample(rng);
-            coord[j] += sigma * z[j].max(1.0) * g;
+            *c += scale * g;
         }
-    }
-    let count = gather_hits(&masks[..n], 32, t, hits);
-    for &j in &hits[..count] {
-        let j = j as usize;
-        let g: f32 = StandardNormal.sample(rng);
-        z[j] += sigma * z[j].max(1.0) * g;
     }
 }
 
-/// Writes the indices j whose 16 bits of `masks[j]` at `shift` are below `t` to the front of
-/// `hits` (without branches: every index is written, the cursor advances on a hit); returns
-/// how many.
+/// Writes `base + j` for every j whose flag is set to the front of `out` and returns how many
+/// (at most `out.len()`). Without branches: every index is written and the cursor advances on a
+/// set flag, so flags that are coin tosses cost no mispredictions.
 #[inline]
-fn gather_hits(masks: &[u64], shift: u32, t: u64, hits: &mut [u32]) -> usize {
+fn gather(flags: impl Iterator<Item = bool>, base: usize, out: &mut [u32]) -> usize {
     let mut count = 0;
-    for (j, &m) in masks.iter().enumerate() {
-        if let Some(h) = hits.get_mut(count) {
-            *h = j as u32;
+    for (j, f) in flags.enumerate() {
+        if let Some(slot) = out.get_mut(count) {
+            *slot = (base + j) as u32;
         }
-        count += usize::from((m >> shift) & 0xffff < t);
+        count += usize::from(f);
     }
-    count.min(hits.len())
+    count.min(out.len())
+}
+
+/// Probability `p` in [0, 1] as a threshold on 32 random bits: `bits < threshold` with
+/// probability `p` (to within 2^-32).
+#[inline]
+fn unit_threshold(p: f64) -> u32 {
+    (p * 4_294_967_296.0).min(u32::MAX as f64) as u32
+}
+
+/// Lemire's multiply-shift: 32 random bits to `0..n`, unbiased to within n / 2^32.
+#[inline]
+fn lemire(bits: u32, n: usize) -> usize {
+    ((u64::from(bits) * n as u64) >> 32) as usize
 }
 
 /// The paper's warning of one fly, with its clamps.

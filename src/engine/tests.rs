@@ -92,22 +92,19 @@ fn render_wall_and_panel(cam: &Camera, depth: f64, seed: u64, panel: Option<Pane
 }
 
 fn wall_frame(rig: &StereoRig, depth: f64, seed: u64, id: u64) -> StereoFrame {
-    let prep = |cam: &Camera| {
-        PreparedImage::from_pixels(
-            cam.width(),
-            cam.height(),
-            PixelFormat::Rgb8,
-            &render_wall(cam, depth, seed),
-        )
-        .expect("frame")
-    };
-    StereoFrame::new(prep(&rig.left), prep(&rig.right), id)
+    scene_frame(rig, depth, seed, None, id)
 }
 
-/// The wall at `depth` with `panel` in front of it.
-fn panel_frame(rig: &StereoRig, depth: f64, panel: Panel, id: u64) -> StereoFrame {
+/// The wall at `depth` (texture `seed`), with `panel` in front of it if any.
+fn scene_frame(
+    rig: &StereoRig,
+    depth: f64,
+    seed: u64,
+    panel: Option<Panel>,
+    id: u64,
+) -> StereoFrame {
     let prep = |cam: &Camera| {
-        let px = render_wall_and_panel(cam, depth, 3, Some(panel));
+        let px = render_wall_and_panel(cam, depth, seed, panel);
         PreparedImage::from_pixels(cam.width(), cam.height(), PixelFormat::Rgb8, &px)
             .expect("frame")
     };
@@ -519,7 +516,7 @@ fn guided_breeding_multiplies_the_flies_on_what_appeared() {
     let rig = rig();
     let wall = wall_frame(&rig, 8.0, 3, 0);
     let panel = [-0.9, 0.1, 0.4, 1.4, 4.0];
-    let with_panel = [1, 2, 3].map(|id| panel_frame(&rig, 8.0, panel, id));
+    let with_panel = [1, 2, 3].map(|id| scene_frame(&rig, 8.0, 3, Some(panel), id));
     let on_panel = |breeding: f64| {
         let mut p = params(5000, 7);
         p.guided_breeding = breeding;
