@@ -58,9 +58,11 @@ fn generations_do_not_allocate() {
     let mut engine = Engine::new(mock.rig(), params).expect("engine");
     engine.step(&frames[0]).expect("first generation");
     COUNTING.store(true, Ordering::SeqCst);
-    let mut probes = 0;
+    let (mut probes, mut refreshed) = (0, 0);
     for g in 0..30 {
-        probes += engine.step(&frames[(g / 3) % 2]).expect("step").probes;
+        let s = engine.step(&frames[(g / 3) % 2]).expect("step");
+        probes += s.probes;
+        refreshed += s.refreshed;
     }
     COUNTING.store(false, Ordering::SeqCst);
     assert_eq!(
@@ -71,5 +73,9 @@ fn generations_do_not_allocate() {
     assert!(
         probes > 0,
         "the depth probes of guided immigrants did not run"
+    );
+    assert!(
+        refreshed > 0,
+        "no fly was re-evaluated before selection where the image changed"
     );
 }

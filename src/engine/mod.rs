@@ -12,7 +12,10 @@
 //!
 //! # One generation ([`Engine::step`])
 //! 1. **Selection** (elitist, deterministic): the best `survival_rate` of the flies by shared
-//!    fitness are kept, found in O(N) with a selection (not a sort).
+//!    fitness are kept, found in O(N) with a selection (not a sort). On the first generation of
+//!    a new frame, the flies whose left projection lies where the image changed are
+//!    re-evaluated first: their stale fitness is the one that no longer holds (a fly that a new
+//!    obstacle hides).
 //! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
 //!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, from the survivors in
 //!    blocks where the left image changed ([`change`]) when there are some, from all survivors
@@ -188,6 +191,9 @@ pub struct GenerationStats {
     /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes` + 8
     /// each).
     pub probes: usize,
+    /// Flies re-evaluated before selection because the image changed where they project
+    /// (first generation on a new frame only).
+    pub refreshed: usize,
     /// Flies whose projection falls inside both images.
     pub visible: usize,
     /// Whether this generation saw a new frame.
@@ -263,6 +269,8 @@ pub struct Engine {
     probe_slot: Vec<u32>,
     /// Probes evaluated in the latest generation.
     probed: usize,
+    /// Flies re-evaluated before selection in the latest generation ([`Engine::refresh_changed`]).
+    refreshed: usize,
     sharing: sharing::Grid,
     /// Per-fly intermediates of an evaluation (population or probes, whichever is larger).
     scratch: fitness::Scratch,
@@ -320,6 +328,7 @@ impl Engine {
             probe_ray: vec![[0.0; 4]; params.immigrants()],
             probe_slot: vec![0; params.immigrants()],
             probed: 0,
+            refreshed: 0,
             frame_size: (
                 rig.left.width(),
                 rig.left.height(),
@@ -364,12 +373,16 @@ impl Engine {
     pub fn step(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
         self.check_frame(frame)?;
         let new_frame = self.frame_id != Some(frame.id);
+        self.refreshed = 0;
         if new_frame {
             // Before reproduction, so this generation's immigrants already go where it changed.
             self.change.update(frame.left.block_means());
         }
         let kernel = Kernel::new(frame, &self.params);
         if self.frame_id.is_some() {
+            if new_frame {
+                self.refresh_changed(&kernel);
+            }
             self.reproduce(&kernel);
         }
         if new_frame {
@@ -402,6 +415,7 @@ impl Engine {
             },
             evaluated: n - from,
             probes: self.probed,
+            refreshed: self.refreshed,
             visible,
             new_frame,
             change: self.change.total,
@@ -465,6 +479,40 @@ impl Engine {
         let danger = if sum_f > 0.0 { sum_w / sum_f } else { 0.0 };
         let n = p.len() as f64;
         (sum_w / n, danger, sum_f / n, visible)
+    }
+
+    /// Re-evaluates, before selection, the flies whose left projection lies where the image
+    /// changed: there the previous frame's fitness is the one that is wrong (a fly on the
+    /// background that an obstacle now hides would survive, and parent the guided breeding,
+    /// on evidence that is gone). Elsewhere the stale fitness still ranks the flies as the new
+    /// frame would. Evaluated in the probe buffer, so the population's slots are untouched.
+    fn refresh_changed(&mut self, kernel: &Kernel) {
+        if self.change.total <= 0.0 {
+            return;
+        }
+        let n = self.pop.len();
+        let (change, pop) = (&self.change, &self.pop);
+        let changed = (0..n).map(|i| change.changed_at(pop.u_left[i], pop.v_left[i]));
+        let m = gather(changed, 0, &mut self.breeders).min(self.probe.len());
+        for (k, &i) in self.breeders[..m].iter().enumerate() {
+            let i = i as usize;
+            self.probe.x[k] = self.pop.x[i];
+            self.probe.y[k] = self.pop.y[i];
+            self.probe.z[k] = self.pop.z[i];
+        }
+        kernel.evaluate(
+            &self.left,
+            &self.right,
+            &mut self.probe,
+            0..m,
+            &self.sharing,
+            &mut self.scratch,
+        );
+        for (k, &i) in self.breeders[..m].iter().enumerate() {
+            self.pop.raw_fitness[i as usize] = self.probe.raw_fitness[k];
+        }
+        self.refreshed = m;
+        self.sharing.apply(&mut self.pop);
     }
 
     /// Selection and genetic operators: survivors move to `0..keep` (in place), offspring fill
