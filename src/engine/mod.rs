@@ -26,7 +26,8 @@
 //!    that `guided_immigration` of them go where the left image changed since the previous
 //!    frame ([`change`]): each takes the strongest gradient of a few points of a changed block
 //!    and keeps the fittest of `immigrant_probes` depths along that ray (one per stratum of
-//!    inverse depth), then of 8 more around it, evaluated on the current frame.
+//!    inverse depth), then of two refinement stages of 8 around the fittest so far (over one
+//!    stratum, then over a quarter of that), evaluated on the current frame.
 //! 3. **Evaluation** ([`fitness`]): `F = g_L g_R / (SSD + floor)` at the two projections.
 //! 4. **Road region of interest** (paper 5.1): outside it, F is multiplied by `roi.penalty`.
 //! 5. **Sharing** ([`sharing`]): F is divided by `n^sharing_exponent`, n being the number of flies
@@ -188,7 +189,7 @@ pub struct GenerationStats {
     pub matched: f64,
     /// Flies evaluated in this generation.
     pub evaluated: usize,
-    /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes` + 8
+    /// Depth probes of guided immigrants evaluated in this generation (`immigrant_probes` + 16
     /// each).
     pub probes: usize,
     /// Flies re-evaluated before selection because the image changed where they project
@@ -223,6 +224,8 @@ struct Sampler {
 
 /// Second-stage depth probes of a guided immigrant, around its best first-stage probe.
 const REFINE_PROBES: usize = 8;
+/// Refinement stages after the first one (see [`Engine::immigrate`]).
+const REFINE_STAGES: usize = 2;
 
 /// Index and value of the first of the fittest (deterministic); (0, 0) if none is positive.
 fn first_fittest(fit: &[f32]) -> (usize, f32) {
@@ -267,6 +270,8 @@ pub struct Engine {
     probe_ray: Vec<[f32; 4]>,
     /// Population slot of each probed immigrant.
     probe_slot: Vec<u32>,
+    /// Best probe of each probed immigrant so far: (inverse-depth parameter, fitness, index).
+    probe_best: Vec<(f32, f32, u32)>,
     /// Probes evaluated in the latest generation.
     probed: usize,
     /// Flies re-evaluated before selection in the latest generation ([`Engine::refresh_changed`]).
@@ -300,9 +305,10 @@ impl Engine {
                 n,
             ),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
-            scratch: fitness::Scratch::new(
-                n.max(params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES)),
-            ),
+            scratch: fitness::Scratch::new(n.max(
+                params.immigrants()
+                    * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
+            )),
             left,
             right,
             sampler,
@@ -322,11 +328,13 @@ impl Engine {
             masks: vec![0; n],
             hits: vec![0; n],
             probe: Population::with_len(
-                params.immigrants() * (params.immigrant_probes as usize + REFINE_PROBES),
+                params.immigrants()
+                    * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
             ),
             probe_t: vec![0.0; params.immigrants() * params.immigrant_probes as usize],
             probe_ray: vec![[0.0; 4]; params.immigrants()],
             probe_slot: vec![0; params.immigrants()],
+            probe_best: vec![(0.0, 0.0, 0); params.immigrants()],
             probed: 0,
             refreshed: 0,
             frame_size: (
@@ -650,43 +658,58 @@ impl Engine {
                 &self.sharing,
                 &mut self.scratch,
             );
-            // Second stage: REFINE_PROBES depths evenly spread over one stratum centred on the
-            // best first-stage probe. A stratum spans several pixels of disparity and the
-            // window matches within about one, so the first stage finds the right stratum more
-            // often than the right depth.
-            let fine = probing * k;
+            // Best probe of each immigrant so far: (t, fitness, probe index).
             for j in 0..probing {
-                let best = first_fittest(&self.probe.raw_fitness[j * k..(j + 1) * k]).0;
-                let t0 = self.probe_t[j * k + best];
-                let [xn, yn, i0, i1] = self.probe_ray[j];
-                for q in 0..REFINE_PROBES {
-                    let t = t0 + ((q as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) / k as f32;
-                    let p = self
-                        .sampler
-                        .at(xn, yn, 1.0 / lerp((i0, i1), t.clamp(0.0, 1.0)));
-                    let at = fine + j * REFINE_PROBES + q;
-                    self.probe.x[at] = p[0];
-                    self.probe.y[at] = p[1];
-                    self.probe.z[at] = p[2];
-                }
+                let (b, f) = first_fittest(&self.probe.raw_fitness[j * k..(j + 1) * k]);
+                self.probe_best[j] = (self.probe_t[j * k + b], f, (j * k + b) as u32);
             }
-            self.probed += probing * REFINE_PROBES;
-            kernel.evaluate(
-                &self.left,
-                &self.right,
-                &mut self.probe,
-                fine..fine + probing * REFINE_PROBES,
-                &self.sharing,
-                &mut self.scratch,
-            );
+            // Refinement: each stage spreads REFINE_PROBES depths evenly around the best probe
+            // so far, the first over one stratum, each next over two spacings of the previous.
+            // A stratum spans several pixels of disparity while the fitness peaks within a
+            // fraction of one, so the first stage finds the right stratum more often than the
+            // right depth.
+            let mut width = 1.0 / k as f32;
+            for stage in 0..REFINE_STAGES {
+                let fine = probing * (k + stage * REFINE_PROBES);
+                for j in 0..probing {
+                    let t0 = self.probe_best[j].0;
+                    let [xn, yn, i0, i1] = self.probe_ray[j];
+                    for q in 0..REFINE_PROBES {
+                        let t = t0 + ((q as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) * width;
+                        let p = self
+                            .sampler
+                            .at(xn, yn, 1.0 / lerp((i0, i1), t.clamp(0.0, 1.0)));
+                        let at = fine + j * REFINE_PROBES + q;
+                        self.probe.x[at] = p[0];
+                        self.probe.y[at] = p[1];
+                        self.probe.z[at] = p[2];
+                    }
+                }
+                self.probed += probing * REFINE_PROBES;
+                kernel.evaluate(
+                    &self.left,
+                    &self.right,
+                    &mut self.probe,
+                    fine..fine + probing * REFINE_PROBES,
+                    &self.sharing,
+                    &mut self.scratch,
+                );
+                for j in 0..probing {
+                    let r = fine + j * REFINE_PROBES;
+                    let (b, f) = first_fittest(&self.probe.raw_fitness[r..r + REFINE_PROBES]);
+                    if f > self.probe_best[j].1 {
+                        let t = self.probe_best[j].0
+                            + ((b as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) * width;
+                        self.probe_best[j] = (t, f, (r + b) as u32);
+                    }
+                }
+                width *= 2.0 / REFINE_PROBES as f32;
+            }
             for (j, &slot) in self.probe_slot[..probing].iter().enumerate() {
-                let (b1, f1) = first_fittest(&self.probe.raw_fitness[j * k..(j + 1) * k]);
-                let r = fine + j * REFINE_PROBES;
-                let (b2, f2) = first_fittest(&self.probe.raw_fitness[r..r + REFINE_PROBES]);
+                let (_, f, q) = self.probe_best[j];
                 // The middle probe stays if all fail.
-                let q = if f2 > f1 { r + b2 } else { j * k + b1 };
-                if f1.max(f2) > 0.0 {
-                    let i = slot as usize;
+                if f > 0.0 {
+                    let (i, q) = (slot as usize, q as usize);
                     self.pop.x[i] = self.probe.x[q];
                     self.pop.y[i] = self.probe.y[q];
                     self.pop.z[i] = self.probe.z[q];

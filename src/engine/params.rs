@@ -47,11 +47,12 @@ pub struct EngineParams {
     pub guided_immigration: f64,
     /// Depths tried along the ray of each guided immigrant before it joins the population: the
     /// probes are spread over the ray's inverse-depth range inside the search range and the road
-    /// region of interest (one per stratum), evaluated on the current frame; 8 more are spread
-    /// over one stratum around the fittest (a stratum spans several pixels of disparity, the
-    /// window matches within about one), and the fittest of all is kept. 1 is the paper's
-    /// immigrant (one random depth, no second stage). Costs `probes + 8` evaluations per guided
-    /// immigrant, only while the image changes.
+    /// region of interest (one per stratum), evaluated on the current frame; then 8 more are
+    /// spread over one stratum around the fittest, and 8 more over a quarter of that around the
+    /// fittest so far (a stratum spans several pixels of disparity, the fitness peaks within a
+    /// fraction of one), and the fittest of all is kept. 1 is the paper's immigrant (one random
+    /// depth, no refinement). Costs `probes + 16` evaluations per guided immigrant, only while
+    /// the image changes.
     pub immigrant_probes: u32,
     /// Fraction of crossovers whose second parent is drawn from the first parent's sharing
     /// cell (mating restriction) rather than from all survivors. 0 is the paper's operator; 1
@@ -102,7 +103,7 @@ impl Default for EngineParams {
             survival_rate: 0.4,
             immigration_rate: 0.05,
             guided_immigration: 0.75,
-            immigrant_probes: 16,
+            immigrant_probes: 32,
             local_mating: 1.0,
             guided_breeding: 0.75,
             mutation_rate: 0.4,
