@@ -17,9 +17,9 @@
 //!    re-evaluated first: their stale fitness is the one that no longer holds (a fly that a new
 //!    obstacle hides).
 //! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
-//!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, from the survivors in
-//!    blocks where the left image changed ([`change`]) when there are some, from all survivors
-//!    otherwise; the second from the first one's sharing cell with probability
+//!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, the fittest before
+//!    sharing of `breeding_tournament` survivors drawn in blocks where the left image changed
+//!    ([`change`]) when there are some, one drawn from all survivors otherwise; the second from the first one's sharing cell with probability
 //!    `local_mating`, from all survivors otherwise), then Gaussian mutation of each coordinate
 //!    with probability `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last
 //!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
@@ -258,6 +258,8 @@ pub struct Engine {
     movers: Vec<u32>,
     /// Survivors in changed blocks: the first parents of guided breeding.
     breeders: Vec<u32>,
+    /// Their fitness before sharing (the breeding tournament's key).
+    breeder_fitness: Vec<f32>,
     /// Mutation coin tosses of each offspring (16 bits a coordinate) and the offspring a
     /// coordinate's mutation moves.
     masks: Vec<u64>,
@@ -325,6 +327,7 @@ impl Engine {
             holes: vec![0; n],
             movers: vec![0; n],
             breeders: vec![0; n],
+            breeder_fitness: vec![0.0; n],
             masks: vec![0; n],
             hits: vec![0; n],
             probe: Population::with_len(
@@ -552,6 +555,16 @@ impl Engine {
         } else {
             0
         };
+        let tournament = self.params.breeding_tournament as usize;
+        if tournament > 1 {
+            for (f, &i) in self
+                .breeder_fitness
+                .iter_mut()
+                .zip(&self.breeders[..breeders])
+            {
+                *f = self.pop.raw_fitness[i as usize];
+            }
+        }
         let guided = unit_threshold(self.params.guided_breeding);
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
@@ -563,7 +576,21 @@ impl Engine {
             if breeders > 0 {
                 let g = self.rng.next_u64();
                 if (g as u32) < guided {
-                    a = self.breeders[lemire((g >> 32) as u32, breeders)] as usize;
+                    // Tournament: the fittest of `tournament` draws, two per random word.
+                    let fit = &self.breeder_fitness[..breeders];
+                    let mut best = lemire((g >> 32) as u32, breeders);
+                    let mut best_f = fit[best];
+                    let mut bits = 0;
+                    for k in 1..tournament {
+                        if k % 2 == 1 {
+                            bits = self.rng.next_u64();
+                        }
+                        let c = lemire((bits >> (32 * (k % 2))) as u32, breeders);
+                        if fit[c] > best_f {
+                            (best, best_f) = (c, fit[c]);
+                        }
+                    }
+                    a = self.breeders[best] as usize;
                 }
             }
             let r2 = self.rng.next_u64();

@@ -28,6 +28,9 @@ impl Default for RoadRoi {
     }
 }
 
+/// Upper bound of [`EngineParams::breeding_tournament`].
+pub const MAX_TOURNAMENT: u32 = 64;
+
 /// Upper bound of [`EngineParams::immigrant_probes`].
 pub const MAX_PROBES: u32 = 256;
 
@@ -63,8 +66,16 @@ pub struct EngineParams {
     /// left image changed (see `guided_immigration`), when some survivor is in one; the others
     /// draw it from all survivors (the paper). Guided immigrants find a new obstacle; this
     /// lets the few that did breed faster than the converged flies elsewhere. Inert on a static
-    /// scene, and nearly uniform when everything moves.
+    /// scene.
     pub guided_breeding: f64,
+    /// A guided offspring's first parent is the fittest (by fitness before sharing) of this many
+    /// survivors drawn from the changed blocks; 1 draws one uniformly. The flies there are a
+    /// mix of the few that found the new obstacle (fitness ~20-50 in hw-mock) and of background
+    /// flies and immigrants at the wrong depth (~1): drawn uniformly, the former parent a few
+    /// offspring each. A tournament ranks rather than weighs, so one outlier fitness (a false
+    /// match on a periodic texture) cannot take over the breeding as it would under
+    /// fitness-proportional choice.
+    pub breeding_tournament: u32,
     /// Probability that each coordinate of an offspring is mutated (paper: 40 %).
     pub mutation_rate: f64,
     /// Standard deviation of the Gaussian mutation, relative to the fly's depth: a fly at z metres
@@ -106,6 +117,7 @@ impl Default for EngineParams {
             immigrant_probes: 32,
             local_mating: 1.0,
             guided_breeding: 0.75,
+            breeding_tournament: 8,
             mutation_rate: 0.4,
             mutation_sigma: 0.01,
             neighbourhood_radius: 3,
@@ -154,6 +166,15 @@ impl EngineParams {
         unit("local_mating", self.local_mating)?;
         unit("guided_immigration", self.guided_immigration)?;
         unit("guided_breeding", self.guided_breeding)?;
+        if !(1..=MAX_TOURNAMENT).contains(&self.breeding_tournament) {
+            return err(
+                "breeding_tournament",
+                format!(
+                    "must be within 1..={MAX_TOURNAMENT}, got {}",
+                    self.breeding_tournament
+                ),
+            );
+        }
         if !(1..=MAX_PROBES).contains(&self.immigrant_probes) {
             return err(
                 "immigrant_probes",
@@ -287,6 +308,8 @@ mod tests {
         check(|p| p.mutation_sigma = f64::NAN, "mutation_sigma");
         check(|p| p.flies = 3, "flies");
         check(|p| p.immigrant_probes = 0, "immigrant_probes");
+        check(|p| p.breeding_tournament = 0, "breeding_tournament");
+        check(|p| p.breeding_tournament = 65, "breeding_tournament");
         check(|p| p.ssd_floor = 0.0, "ssd_floor");
         check(
             |p| {
