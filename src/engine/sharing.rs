@@ -83,7 +83,8 @@ impl Grid {
 /// + cells), no allocation.
 #[derive(Debug, Clone)]
 pub(crate) struct Mates {
-    /// `start[c]..start[c + 1]` indexes `members` for cell c.
+    /// `start[c + 1]..start[c + 2]` indexes `members` for cell c (the offset by one lets the
+    /// counting sort fill it in place, see [`Mates::index`]).
     start: Vec<u32>,
     members: Vec<u32>,
 }
@@ -92,42 +93,49 @@ impl Mates {
     pub(crate) fn new(width: u32, height: u32, cell_px: u32, flies: usize) -> Self {
         let cells = (width.div_ceil(cell_px) * height.div_ceil(cell_px)) as usize;
         Self {
-            start: vec![0; cells + 1],
+            start: vec![0; cells + 2],
             members: vec![0; flies],
         }
     }
 
     /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
     pub(crate) fn index(&mut self, cells: &[u32]) {
-        let n_cells = self.start.len() - 1;
+        // Counts at `start[c + 1]`; a running sum turns them into ends, `start[c + 1]` = the end
+        // of cell c (the sum in a register: no store-to-load chain through the array).
+        let n_cells = self.start.len() - 2;
         self.start.fill(0);
         for &c in cells {
             if (c as usize) < n_cells {
                 self.start[c as usize + 1] += 1;
             }
         }
-        for c in 0..n_cells {
-            self.start[c + 1] += self.start[c];
+        let mut end = 0;
+        for s in &mut self.start {
+            end += *s;
+            *s = end;
         }
-        // `start[c]` is used as the insertion cursor, then restored by shifting back.
-        for (i, &c) in cells.iter().enumerate() {
+        // Backwards, each fly takes the last free place of its cell and moves the cell's end
+        // down: when done, `start[c + 1]` has come down to the start of cell c, while
+        // `start[c + 2]` is the start of cell c + 1 = the end of cell c. Members in fly order.
+        for (i, &c) in cells.iter().enumerate().rev() {
             if (c as usize) < n_cells {
-                let at = self.start[c as usize] as usize;
-                if let Some(m) = self.members.get_mut(at) {
+                let at = &mut self.start[c as usize + 1];
+                *at -= 1;
+                if let Some(m) = self.members.get_mut(*at as usize) {
                     *m = i as u32;
                 }
-                self.start[c as usize] += 1;
             }
         }
-        self.start.copy_within(0..n_cells, 1);
-        self.start[0] = 0;
     }
 
     /// A member of `cell` chosen with 32 random bits, or `None` if the cell is empty.
     #[inline]
     pub(crate) fn pick(&self, cell: u32, bits: u32) -> Option<usize> {
         let c = cell as usize;
-        let (lo, hi) = (*self.start.get(c)?, *self.start.get(c + 1)?);
+        if c + 2 >= self.start.len() {
+            return None;
+        }
+        let (lo, hi) = (self.start[c + 1], self.start[c + 2]);
         if hi <= lo {
             return None;
         }
