@@ -14,6 +14,8 @@ const SHIFT: u32 = 20;
 pub(crate) struct Selector {
     hist: Vec<u32>,
     boundary: Vec<u64>,
+    /// Radix key of every fly, computed once (a vectorised pass).
+    keys: Vec<u32>,
 }
 
 /// Radix key of a fitness: NaN and non-positive values rank as zero.
@@ -27,16 +29,21 @@ impl Selector {
         Self {
             hist: vec![0; BINS],
             boundary: Vec::with_capacity(flies),
+            keys: vec![0; flies],
         }
     }
 
     /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.
     pub(crate) fn select(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
-        let n = fitness.len().min(chosen.len());
+        let n = fitness.len().min(chosen.len()).min(self.keys.len());
         let keep = keep.min(n);
+        let keys = &mut self.keys[..n];
+        for (k, &f) in keys.iter_mut().zip(&fitness[..n]) {
+            *k = key(f);
+        }
         self.hist.fill(0);
-        for &f in &fitness[..n] {
-            self.hist[(key(f) >> SHIFT) as usize] += 1;
+        for &k in keys.iter() {
+            self.hist[(k >> SHIFT) as usize] += 1;
         }
         // The bin holding the keep-th best, and how many flies rank strictly above it.
         let (mut bin, mut above) = (BINS - 1, 0usize);
@@ -49,11 +56,11 @@ impl Selector {
             bin -= 1;
         }
         self.boundary.clear();
-        for i in 0..n {
-            let k = key(fitness[i]);
-            let b = (k >> SHIFT) as usize;
-            chosen[i] = b > bin;
-            if b == bin {
+        for (c, &k) in chosen[..n].iter_mut().zip(keys.iter()) {
+            *c = (k >> SHIFT) as usize > bin;
+        }
+        for (i, &k) in keys.iter().enumerate() {
+            if (k >> SHIFT) as usize == bin {
                 // Larger key = better: fitness first, then the lower index.
                 self.boundary
                     .push(((k as u64) << 32) | (!(i as u32)) as u64);
