@@ -19,8 +19,9 @@
 //! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
 //!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, the fittest before
 //!    sharing of `breeding_tournament` survivors drawn in blocks where the left image changed
-//!    ([`change`]) when there are some, one drawn from all survivors otherwise; the second from the first one's sharing cell with probability
-//!    `local_mating`, from all survivors otherwise), then Gaussian mutation of each coordinate
+//!    ([`change`]) when there are some, one drawn from all survivors otherwise; the second from
+//!    the first one's sharing cell with probability `local_mating`, from all survivors
+//!    otherwise), then Gaussian mutation of each coordinate
 //!    with probability `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last
 //!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
 //!    that `guided_immigration` of them go where the left image changed since the previous
@@ -264,7 +265,8 @@ pub struct Engine {
     /// coordinate's mutation moves.
     masks: Vec<u64>,
     hits: Vec<u32>,
-    /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each.
+    /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each, then
+    /// the refinement stages; also the flies refreshed before selection.
     probe: Population,
     /// Inverse-depth parameter of each first-stage probe along its ray.
     probe_t: Vec<f32>,
@@ -330,10 +332,11 @@ impl Engine {
             breeder_fitness: vec![0.0; n],
             masks: vec![0; n],
             hits: vec![0; n],
-            probe: Population::with_len(
+            // Probes of the guided immigrants, or every fly refreshed before selection.
+            probe: Population::with_len(n.max(
                 params.immigrants()
                     * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
-            ),
+            )),
             probe_t: vec![0.0; params.immigrants() * params.immigrant_probes as usize],
             probe_ray: vec![[0.0; 4]; params.immigrants()],
             probe_slot: vec![0; params.immigrants()],
@@ -504,6 +507,8 @@ impl Engine {
         let n = self.pop.len();
         let (change, pop) = (&self.change, &self.pop);
         let changed = (0..n).map(|i| change.changed_at(pop.u_left[i], pop.v_left[i]));
+        // The breeders' buffer holds the indices for now (reproduction refills it); the probe
+        // buffer has room for the whole population.
         let m = gather(changed, 0, &mut self.breeders).min(self.probe.len());
         for (k, &i) in self.breeders[..m].iter().enumerate() {
             let i = i as usize;
@@ -727,7 +732,7 @@ impl Engine {
                     if f > self.probe_best[j].1 {
                         let t = self.probe_best[j].0
                             + ((b as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) * width;
-                        self.probe_best[j] = (t, f, (r + b) as u32);
+                        self.probe_best[j] = (t.clamp(0.0, 1.0), f, (r + b) as u32);
                     }
                 }
                 width *= 2.0 / REFINE_PROBES as f32;
