@@ -640,14 +640,27 @@ impl RawCameras {
     fn resolve(self) -> Result<CamerasConfig, Invalid> {
         let source = match (self.left, self.right, self.mock) {
             (None, None, Some(scenario)) => {
-                if hw_mock::Scenario::by_name(&scenario).is_none() {
-                    return bad(
-                        "cameras.mock",
-                        format!(
-                            "unknown scenario '{scenario}' (known: {})",
-                            hw_mock::Scenario::names().join(", ")
-                        ),
-                    );
+                match hw_mock::Scenario::by_name(&scenario) {
+                    None => {
+                        return bad(
+                            "cameras.mock",
+                            format!(
+                                "unknown scenario '{scenario}' (known: {})",
+                                hw_mock::Scenario::names().join(", ")
+                            ),
+                        );
+                    }
+                    Some(s) if !s.live() => {
+                        return bad(
+                            "cameras.mock",
+                            format!(
+                                "scenario '{scenario}' renders every frame in full, a few a \
+                                 second: use it with `flyd replay --scenario`, not as a live \
+                                 camera"
+                            ),
+                        );
+                    }
+                    Some(_) => {}
                 }
                 CameraSource::Mock { scenario }
             }
@@ -1067,6 +1080,10 @@ interface = "can0"
             "cameras.mock",
             "not both",
         );
+        let driving = MINIMAL
+            .replace("left = \"/dev/video0\"\n", "mock = \"driving\"\n")
+            .replace("right = \"/dev/video1\"\n", "");
+        check_err(&driving, "cameras.mock", "flyd replay");
         check_err(
             &MINIMAL.replace("file = \"rig.toml\"", "builtin = \"mock\""),
             "calibration.builtin",

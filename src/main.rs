@@ -85,7 +85,7 @@ struct ReplayArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
-    /// pedestrian-steps-in, car-approaching.
+    /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian.
     #[arg(long)]
     scenario: Option<String>,
     /// With --scenario: generations per scenario frame (3 = 30 fps at ~10 ms a generation).

@@ -34,7 +34,7 @@ pub use render::{CameraRenderer, RenderError, Response, SensorModel, render};
 pub use scenario::Scenario;
 pub use world::{
     IN_LANE_MAX_RANGE, KERB_WIDTH, LANE_HALF_WIDTH, Material, Obstacle, Pattern, ROAD_HALF_WIDTH,
-    Ray, Scene, roadside,
+    Ray, Scene, roadside, roadside_at,
 };
 
 /// A calibrated camera as the renderer needs it: implemented by flyd's `geometry::Camera`, so
@@ -133,6 +133,48 @@ mod tests {
         }
         // Above the horizon in the middle: sky.
         assert_eq!(depth[(10 * cam.w + 80) as usize], f32::INFINITY);
+    }
+
+    #[test]
+    fn driving_brings_the_road_towards_the_cameras() {
+        let cam = Pinhole::new(0.0);
+        let sensor = SensorModel::ideal();
+        // Depth is in the vehicle frame: the road plane is where it was (the roadside moves).
+        let moved = depth_of(&Scene::driving(6.0, vec![]), &cam);
+        let still = depth_of(&Scene::empty(), &cam);
+        for (u, v) in [(80u32, 100u32), (60, 119), (100, 75), (79, 61)] {
+            let i = (v * cam.w + u) as usize;
+            assert_eq!(moved[i], still[i], "road depth at ({u},{v})");
+        }
+        // The road's texture is fixed to the ground: after driving half a metre every road row
+        // of the image shows something else.
+        let (a, b) = (
+            clean_render(&Scene::empty(), &cam, 0, &sensor),
+            clean_render(&Scene::driving(0.5, vec![]), &cam, 0, &sensor),
+        );
+        let rows_changed = (cam.h / 2 + 2..cam.h)
+            .filter(|&v| {
+                let row = (v * cam.w * 3) as usize..((v + 1) * cam.w * 3) as usize;
+                a[row.clone()] != b[row]
+            })
+            .count();
+        assert_eq!(
+            rows_changed as u32,
+            cam.h - (cam.h / 2 + 2),
+            "every road row changes"
+        );
+        // A roadside pole 4 m ahead on the right, then 2 m after driving 2 m.
+        let pole = |d: f64| {
+            roadside_at(d)
+                .into_iter()
+                .find_map(|o| match o {
+                    Obstacle::Cylinder { x, z, .. } if x == 6.2 && z < 5.0 => Some(z),
+                    _ => None,
+                })
+                .expect("the first right pole")
+        };
+        assert_eq!(pole(0.0), 4.0);
+        assert_eq!(pole(2.0), 2.0);
     }
 
     #[test]
@@ -254,6 +296,11 @@ mod tests {
                 material: *Obstacle::car(0.0, 0.0).material(),
             }]),
             // Back to nothing: every tile an obstacle touched must be restored.
+            Scene::empty(),
+            // Driving: a new background, with and without an obstacle, and back to standing.
+            Scene::driving(3.7, vec![]),
+            Scene::driving(7.0, vec![Obstacle::pedestrian(0.0, 5.0)]),
+            Scene::driving(7.0, vec![]),
             Scene::empty(),
         ];
         let n = (cam.w * cam.h) as usize;

@@ -4,7 +4,9 @@
 //! the whole world, no caching. [`CameraRenderer`] produces byte-identical output fast enough
 //! for a live 30 fps stereo feed:
 //! - each pixel's ray is computed once (rays are static for a calibrated camera);
-//! - the static world (road, sky, roadside) is rendered once;
+//! - the static world (road, sky, roadside) is rendered once (once per frame for a moving
+//!   vehicle, [`Scene::travelled`]: then each frame costs a full render, a few frames a second
+//!   at 640x480, for offline replay rather than a live feed);
 //! - the noise-free image of the last scene is cached (scenes are compared for equality, not
 //!   hashed, so there are no collisions), and a changed scene only re-traces obstacles, and only
 //!   in 16x16 pixel tiles whose bounding cone of rays can meet the obstacle's bounding sphere;
@@ -14,7 +16,7 @@
 
 use crate::RayCamera;
 use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
-use crate::world::{Ray, Sample, Scene, roadside, trace};
+use crate::world::{Ray, Sample, Scene, roadside_at, trace};
 
 /// Why a render could not be done. Rendering never panics; it reports these instead.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -284,13 +286,13 @@ pub fn render(
     let (width, height) = cam.size();
     check_buffers(width, height, rgb, depth.as_deref())?;
     let response = sensor.check(camera_index)?;
-    let props = roadside();
+    let props = roadside_at(scene.travelled);
     let mut clean = vec![0u8; rgb.len()];
     let mut i = 0;
     for v in 0..height {
         for u in 0..width {
             let s = match StoredRay::from_camera(cam, u, v).ray() {
-                Some(ray) => trace(&ray, &props, &scene.obstacles),
+                Some(ray) => trace(&ray, &props, &scene.obstacles, scene.travelled),
                 None => INVALID_SAMPLE,
             };
             clean[3 * i..3 * i + 3].copy_from_slice(&s.rgb);
@@ -415,7 +417,8 @@ pub struct CameraRenderer {
     height: u32,
     rays: Vec<StoredRay>,
     tiles: Vec<Tile>,
-    /// The static world (road, sky, roadside) alone.
+    /// The static world (road, sky, roadside) alone, the vehicle `bg_travelled` m down the road.
+    bg_travelled: f64,
     bg_rgb: Vec<u8>,
     bg_depth: Vec<f32>,
     bg_t: Vec<f64>,
@@ -468,6 +471,7 @@ impl CameraRenderer {
             height,
             rays,
             tiles,
+            bg_travelled: 0.0,
             bg_rgb: vec![0; pixels * 3],
             bg_depth: vec![0.0; pixels],
             bg_t: vec![0.0; pixels],
@@ -480,7 +484,7 @@ impl CameraRenderer {
             sensed_for: None,
             noise: None,
         };
-        r.render_background();
+        r.render_background(0.0);
         r.dirty = vec![false; r.tiles.len()];
         r.clean_rgb.clone_from(&r.bg_rgb);
         r.clean_depth.clone_from(&r.bg_depth);
@@ -492,8 +496,9 @@ impl CameraRenderer {
         (self.width, self.height)
     }
 
-    fn render_background(&mut self) {
-        let props = roadside();
+    fn render_background(&mut self, travelled: f64) {
+        self.bg_travelled = travelled;
+        let props = roadside_at(travelled);
         let bounds: Vec<_> = props
             .iter()
             .map(|p| p.bounding_sphere().zip(p.aabb()))
@@ -509,7 +514,7 @@ impl CameraRenderer {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
-                        Some(ray) => trace(&ray, &candidates, &[]),
+                        Some(ray) => trace(&ray, &candidates, &[], travelled),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);
@@ -530,6 +535,11 @@ impl CameraRenderer {
     }
 
     fn trace_scene(&mut self, scene: &Scene) {
+        if scene.travelled.to_bits() != self.bg_travelled.to_bits() {
+            // The vehicle moved: a new background, and every tile restored from it.
+            self.render_background(scene.travelled);
+            self.dirty.fill(true);
+        }
         let w = self.width as usize;
         for (tile, dirty) in self.tiles.iter().zip(&mut self.dirty) {
             if !std::mem::take(dirty) {

@@ -1,6 +1,8 @@
 //! Scripted scenarios: sequences of scenes at a fixed frame rate, with the ground truth a
-//! reaction-time measurement needs. The vehicle is stationary: the world frame is the vehicle
-//! frame, and only obstacles move.
+//! reaction-time measurement needs. The vehicle is stationary in all but the `driving*` ones,
+//! where road and roadside come towards it ([`Scene::travelled`]); obstacles are always given in
+//! the vehicle frame. A moving vehicle's frames each cost a full render (a few frames a second
+//! at 640x480): those scenarios are for offline replay, not a live mock camera.
 
 use crate::world::{Obstacle, Scene};
 
@@ -12,6 +14,8 @@ enum Kind {
     Pedestrian4m,
     PedestrianStepsIn,
     CarApproaching,
+    Driving,
+    DrivingToPedestrian,
 }
 
 /// Frame at which the pedestrian of `pedestrian-steps-in` appears.
@@ -22,6 +26,11 @@ const WALK_SPEED: f64 = 1.4;
 /// Range of the approaching car's rear over the scenario, metres.
 const CAR_FROM: f64 = 25.0;
 const CAR_TO: f64 = 5.0;
+/// Speed of the vehicle in `driving`, m/s (29 km/h).
+const DRIVING_SPEED: f64 = 8.0;
+/// `driving-to-pedestrian`: speed, and where the pedestrian stands at the first frame.
+const APPROACH_SPEED: f64 = 5.0;
+const PEDESTRIAN_FROM: f64 = 30.0;
 
 /// A named, deterministic sequence of scenes.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,7 +41,7 @@ pub struct Scenario {
     frames: u32,
 }
 
-const ALL: [Scenario; 4] = [
+const ALL: [Scenario; 6] = [
     Scenario {
         name: "empty-road",
         description: "Nothing in the lane; roadside walls, poles and trees only.",
@@ -55,6 +64,18 @@ const ALL: [Scenario; 4] = [
         name: "car-approaching",
         description: "A car in the lane whose rear closes linearly from 25 m to 5 m over the scenario (~4 m/s).",
         kind: Kind::CarApproaching,
+        frames: 150,
+    },
+    Scenario {
+        name: "driving",
+        description: "The vehicle drives down the empty road at 8 m/s (29 km/h): road and roadside come towards it, nothing in the lane. Offline replay only (full render each frame).",
+        kind: Kind::Driving,
+        frames: 150,
+    },
+    Scenario {
+        name: "driving-to-pedestrian",
+        description: "The vehicle drives at 5 m/s towards a pedestrian standing in the lane centre, 30 m ahead at the first frame and 5.2 m at the last. Offline replay only (full render each frame).",
+        kind: Kind::DrivingToPedestrian,
         frames: 150,
     },
 ];
@@ -85,6 +106,12 @@ impl Scenario {
         FPS
     }
 
+    /// Whether [`crate::CameraRenderer`] keeps up with the frame rate at 640x480: false for the
+    /// `driving*` scenarios, whose every frame is a full render (offline replay only).
+    pub fn live(&self) -> bool {
+        !matches!(self.kind, Kind::Driving | Kind::DrivingToPedestrian)
+    }
+
     /// The scene at `frame`. Frames past the end hold the last scene, so a consumer that runs
     /// longer than the script sees a still world rather than an error.
     pub fn scene_at(&self, frame: u32) -> Scene {
@@ -105,6 +132,14 @@ impl Scenario {
                 let last = self.frames.saturating_sub(1).max(1);
                 let w = f64::from(f) / f64::from(last);
                 Scene::with(vec![Obstacle::car(0.0, CAR_FROM + (CAR_TO - CAR_FROM) * w)])
+            }
+            Kind::Driving => Scene::driving(DRIVING_SPEED * seconds(0), vec![]),
+            Kind::DrivingToPedestrian => {
+                let travelled = APPROACH_SPEED * seconds(0);
+                Scene::driving(
+                    travelled,
+                    vec![Obstacle::pedestrian(0.0, PEDESTRIAN_FROM - travelled)],
+                )
             }
         }
     }
@@ -138,6 +173,23 @@ mod tests {
         assert_eq!(first("pedestrian-4m"), Some(0));
         assert_eq!(first("pedestrian-steps-in"), Some(30));
         assert_eq!(first("car-approaching"), Some(0));
+        assert_eq!(first("driving"), None);
+        assert_eq!(first("driving-to-pedestrian"), Some(0));
+    }
+
+    #[test]
+    fn driving_moves_the_world_and_keeps_obstacles_in_the_vehicle_frame() {
+        let s = Scenario::by_name("driving").expect("exists");
+        assert_eq!(s.scene_at(0).travelled, 0.0);
+        assert_eq!(s.scene_at(30).travelled, 8.0);
+        assert!(!s.live() && Scenario::by_name("empty-road").is_some_and(|e| e.live()));
+        assert!(s.scene_at(30).obstacles.is_empty());
+        let p = Scenario::by_name("driving-to-pedestrian").expect("exists");
+        let ahead = |f| p.scene_at(f).obstacles[0].footprint().2 + 0.25;
+        assert_eq!(ahead(0), 30.0);
+        assert_eq!(ahead(30), 25.0);
+        assert_eq!(p.scene_at(30).travelled, 5.0);
+        assert!((ahead(149) - 5.17).abs() < 0.01, "{}", ahead(149));
     }
 
     #[test]

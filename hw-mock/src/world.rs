@@ -229,6 +229,17 @@ impl Obstacle {
         }
     }
 
+    /// Moves the obstacle by `dz` metres along z (its texture with it).
+    pub fn shift_z(&mut self, dz: f64) {
+        match self {
+            Obstacle::Box { min, max, .. } => {
+                min[2] += dz;
+                max[2] += dz;
+            }
+            Obstacle::Cylinder { z, .. } => *z += dz,
+        }
+    }
+
     /// Footprint on the road: (x_min, x_max, z_min, z_max).
     pub fn footprint(&self) -> (f64, f64, f64, f64) {
         match *self {
@@ -722,14 +733,16 @@ fn sky(dir: [f64; 3]) -> [f64; 3] {
     scale3(c, 1.0 + 0.04 * cloud)
 }
 
-/// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel.
-pub(crate) fn ground_or_sky(ray: &Ray) -> Sample {
+/// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel. The
+/// vehicle has driven `travelled` metres along the road (the road's texture is fixed to the
+/// ground, so it comes towards the cameras).
+pub(crate) fn ground_or_sky(ray: &Ray, travelled: f64) -> Sample {
     let (o, d) = (ray.origin, ray.dir);
     if d[1] < 0.0 && o[1] > 0.0 {
         let t = -o[1] / d[1];
         let p = ray.at(t);
         let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0]);
-        let albedo = road_albedo(p[0], p[2], across, along);
+        let albedo = road_albedo(p[0], p[2] + travelled, across, along);
         return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
     }
     let c = sky(d);
@@ -740,11 +753,16 @@ pub(crate) fn ground_or_sky(ray: &Ray) -> Sample {
     }
 }
 
-/// Colour, depth and distance seen along a ray: road or sky, then the nearest of `props` and
-/// `obstacles` in that order (ties go to the earlier one). The reference every renderer must
-/// reproduce exactly.
-pub(crate) fn trace(ray: &Ray, props: &[Obstacle], obstacles: &[Obstacle]) -> Sample {
-    let mut best = ground_or_sky(ray);
+/// Colour, depth and distance seen along a ray: road or sky (the vehicle `travelled` metres
+/// along the road), then the nearest of `props` and `obstacles` in that order (ties go to the
+/// earlier one). The reference every renderer must reproduce exactly.
+pub(crate) fn trace(
+    ray: &Ray,
+    props: &[Obstacle],
+    obstacles: &[Obstacle],
+    travelled: f64,
+) -> Sample {
+    let mut best = ground_or_sky(ray, travelled);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
     for o in props.iter().chain(obstacles) {
         if let Some(hit) = o.intersect(ray) {
@@ -758,6 +776,18 @@ pub(crate) fn trace(ray: &Ray, props: &[Obstacle], obstacles: &[Obstacle]) -> Sa
         Some((o, hit)) => o.shade(ray, &hit),
         None => best,
     }
+}
+
+/// The roadside as seen after the vehicle has driven `travelled` metres: [`roadside`] moved
+/// towards it (textures are object-local, so they move along).
+pub fn roadside_at(travelled: f64) -> Vec<Obstacle> {
+    let mut v = roadside();
+    if travelled != 0.0 {
+        for o in &mut v {
+            o.shift_z(-travelled);
+        }
+    }
+    v
 }
 
 /// The static roadside every scene shares (vehicle frame, deterministic): brick walls on the
@@ -842,7 +872,11 @@ pub fn roadside() -> Vec<Obstacle> {
 /// The dynamic part of the world at one instant; the road, sky and [`roadside`] are implied.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Scene {
+    /// Obstacles, in the vehicle frame.
     pub obstacles: Vec<Obstacle>,
+    /// Metres the vehicle has driven straight ahead since the start: the road and the roadside
+    /// ([`roadside_at`]) come towards it. 0 for a stationary vehicle.
+    pub travelled: f64,
 }
 
 impl Scene {
@@ -851,7 +885,18 @@ impl Scene {
     }
 
     pub fn with(obstacles: Vec<Obstacle>) -> Self {
-        Self { obstacles }
+        Self {
+            obstacles,
+            travelled: 0.0,
+        }
+    }
+
+    /// The vehicle `travelled` metres down the road, with `obstacles` (vehicle frame).
+    pub fn driving(travelled: f64, obstacles: Vec<Obstacle>) -> Self {
+        Self {
+            obstacles,
+            travelled,
+        }
     }
 
     /// Whether any valid obstacle's footprint overlaps the vehicle's lane (|x| < 1.75 m) ahead
