@@ -261,8 +261,8 @@ pub struct Engine {
     breeders: Vec<u32>,
     /// Their fitness before sharing (the breeding tournament's key).
     breeder_fitness: Vec<f32>,
-    /// Mutation coin tosses of each offspring (16 bits a coordinate) and the offspring a
-    /// coordinate's mutation moves.
+    /// Mutation coin tosses of each offspring (16 bits a coordinate) and, per coordinate, the
+    /// offspring its mutation moves (three lists, 3 slots a fly: see [`mutate`]).
     masks: Vec<u64>,
     hits: Vec<u32>,
     /// Depth probes of the guided immigrants: `immigrant_probes` consecutive flies each, then
@@ -331,7 +331,7 @@ impl Engine {
             breeders: vec![0; n],
             breeder_fitness: vec![0.0; n],
             masks: vec![0; n],
-            hits: vec![0; n],
+            hits: vec![0; 3 * n],
             // Probes of the guided immigrants, or every fly refreshed before selection.
             probe: Population::with_len(n.max(
                 params.immigrants()
@@ -812,9 +812,10 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
 /// Gaussian mutation of flies `[x, y, z]`: coordinate k of fly j moves with probability
 /// `threshold / 65536` (bits 16k..16k+16 of `masks[j]` below it) by rand_distr's
 /// `StandardNormal` times `sigma * max(z, 1)`, z before the mutation. A coin toss per coordinate
-/// is a branch no predictor guesses, so each coordinate is done in two passes: the indices of
-/// the flies it moves are gathered without branches (into `hits`, one per fly), then only
-/// those draw a normal. Flies beyond `masks` or `hits` are left as they are.
+/// is a branch no predictor guesses, so the mutation is done in two passes: one pass over the
+/// coins gathers, without branches, the indices of the flies each coordinate moves (into
+/// `hits`, three lists of up to n: `hits` holds 3 per fly), then only those draw a normal,
+/// coordinate by coordinate. Flies beyond `masks` or a third of `hits` are left as they are.
 pub fn mutate<R: Rng>(
     [x, y, z]: [&mut [f32]; 3],
     masks: &[u64],
@@ -823,16 +824,32 @@ pub fn mutate<R: Rng>(
     threshold: u32,
     sigma: f32,
 ) {
+    // `hits` holds three lists of up to n indices, one per coordinate.
     let n = x
         .len()
         .min(y.len())
         .min(z.len())
         .min(masks.len())
-        .min(hits.len());
-    for k in 0..3 {
-        let coin = |&m: &u64| (m >> (16 * k)) & 0xffff < u64::from(threshold);
-        let count = gather(masks[..n].iter().map(coin), 0, hits);
-        for &j in &hits[..count] {
+        .min(hits.len() / 3);
+    let (hx, rest) = hits.split_at_mut(n);
+    let (hy, hz) = rest.split_at_mut(n);
+    // One pass over the coins fills the three lists, without branches.
+    let t = u64::from(threshold);
+    let (mut cx, mut cy, mut cz) = (0, 0, 0);
+    for (j, &m) in masks[..n].iter().enumerate() {
+        let j32 = j as u32;
+        if let (Some(a), Some(b), Some(c)) = (hx.get_mut(cx), hy.get_mut(cy), hz.get_mut(cz)) {
+            (*a, *b, *c) = (j32, j32, j32);
+        }
+        cx += usize::from(m & 0xffff < t);
+        cy += usize::from((m >> 16) & 0xffff < t);
+        cz += usize::from((m >> 32) & 0xffff < t);
+    }
+    for (k, list) in [&hx[..cx.min(n)], &hy[..cy.min(n)], &hz[..cz.min(n)]]
+        .into_iter()
+        .enumerate()
+    {
+        for &j in list {
             let j = j as usize;
             // z is mutated last: every coordinate's scale is the depth before the mutation.
             let scale = sigma * z[j].max(1.0);

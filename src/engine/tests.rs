@@ -288,7 +288,7 @@ fn mutation_rate_and_scale() {
     let n = 20000;
     let (mut x, mut y, mut z) = (vec![0.0; n], vec![0.0; n], vec![5.0; n]);
     let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
-    let mut hits = vec![0; n];
+    let mut hits = vec![0; 3 * n];
     mutate(
         [&mut x, &mut y, &mut z],
         &masks,
