@@ -56,11 +56,13 @@ impl Selector {
             bin -= 1;
         }
         self.boundary.clear();
+        // Compared in u32, as the keys are: the flag pass vectorises.
+        let bin32 = bin as u32;
         for (c, &k) in chosen[..n].iter_mut().zip(keys.iter()) {
-            *c = (k >> SHIFT) as usize > bin;
+            *c = (k >> SHIFT) > bin32;
         }
         for (i, &k) in keys.iter().enumerate() {
-            if (k >> SHIFT) as usize == bin {
+            if (k >> SHIFT) == bin32 {
                 // Larger key = better: fitness first, then the lower index.
                 self.boundary
                     .push(((k as u64) << 32) | (!(i as u32)) as u64);
