@@ -300,6 +300,12 @@ impl Engine {
         let sampler = Sampler::new(rig, &params)?;
         let left = Projector::new(&rig.left);
         let right = Projector::new(&rig.right);
+        // The probe buffer: the guided immigrants' probes, or every fly refreshed before
+        // selection; the evaluation scratch is sized for it (it is at least the population).
+        let probes = n.max(
+            params.immigrants()
+                * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
+        );
         let mut engine = Self {
             sharing: sharing::Grid::new(
                 rig.left.width(),
@@ -309,10 +315,7 @@ impl Engine {
                 n,
             ),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
-            scratch: fitness::Scratch::new(n.max(
-                params.immigrants()
-                    * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
-            )),
+            scratch: fitness::Scratch::new(probes),
             left,
             right,
             sampler,
@@ -332,11 +335,7 @@ impl Engine {
             breeder_fitness: vec![0.0; n],
             masks: vec![0; n],
             hits: vec![0; 3 * n],
-            // Probes of the guided immigrants, or every fly refreshed before selection.
-            probe: Population::with_len(n.max(
-                params.immigrants()
-                    * (params.immigrant_probes as usize + REFINE_STAGES * REFINE_PROBES),
-            )),
+            probe: Population::with_len(probes),
             probe_t: vec![0.0; params.immigrants() * params.immigrant_probes as usize],
             probe_ray: vec![[0.0; 4]; params.immigrants()],
             probe_slot: vec![0; params.immigrants()],
@@ -701,13 +700,15 @@ impl Engine {
             // fraction of one, so the first stage finds the right stratum more often than the
             // right depth.
             let mut width = 1.0 / k as f32;
+            // Offset of refinement probe q from the centre, in units of the stage's width.
+            let offset = |q: usize| (q as f32 + 0.5) / REFINE_PROBES as f32 - 0.5;
             for stage in 0..REFINE_STAGES {
                 let fine = probing * (k + stage * REFINE_PROBES);
                 for j in 0..probing {
                     let t0 = self.probe_best[j].0;
                     let [xn, yn, i0, i1] = self.probe_ray[j];
                     for q in 0..REFINE_PROBES {
-                        let t = t0 + ((q as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) * width;
+                        let t = t0 + offset(q) * width;
                         let p = self
                             .sampler
                             .at(xn, yn, 1.0 / lerp((i0, i1), t.clamp(0.0, 1.0)));
@@ -730,8 +731,7 @@ impl Engine {
                     let r = fine + j * REFINE_PROBES;
                     let (b, f) = first_fittest(&self.probe.raw_fitness[r..r + REFINE_PROBES]);
                     if f > self.probe_best[j].1 {
-                        let t = self.probe_best[j].0
-                            + ((b as f32 + 0.5) / REFINE_PROBES as f32 - 0.5) * width;
+                        let t = self.probe_best[j].0 + offset(b) * width;
                         self.probe_best[j] = (t.clamp(0.0, 1.0), f, (r + b) as u32);
                     }
                 }

@@ -166,24 +166,19 @@ impl EngineParams {
         unit("local_mating", self.local_mating)?;
         unit("guided_immigration", self.guided_immigration)?;
         unit("guided_breeding", self.guided_breeding)?;
-        if !(1..=MAX_TOURNAMENT).contains(&self.breeding_tournament) {
-            return err(
-                "breeding_tournament",
-                format!(
-                    "must be within 1..={MAX_TOURNAMENT}, got {}",
-                    self.breeding_tournament
-                ),
-            );
-        }
-        if !(1..=MAX_PROBES).contains(&self.immigrant_probes) {
-            return err(
-                "immigrant_probes",
-                format!(
-                    "must be within 1..={MAX_PROBES}, got {}",
-                    self.immigrant_probes
-                ),
-            );
-        }
+        let count = |key: &'static str, v: u32, max: u32| {
+            if (1..=max).contains(&v) {
+                Ok(())
+            } else {
+                err(key, format!("must be within 1..={max}, got {v}"))
+            }
+        };
+        count(
+            "breeding_tournament",
+            self.breeding_tournament,
+            MAX_TOURNAMENT,
+        )?;
+        count("immigrant_probes", self.immigrant_probes, MAX_PROBES)?;
         let keep = self.survivors();
         if keep < 2 {
             return err("survival_rate", "must keep at least 2 flies".into());

@@ -510,34 +510,36 @@ fn probing_immigrants_land_at_the_depth_that_matches() {
     );
 }
 
-#[test]
-fn guided_breeding_multiplies_the_flies_on_what_appeared() {
-    // A converged population on a wall at 8 m; then a panel appears at 4 m over part of the
-    // image. Survivors where the image changed breed, so flies on the panel multiply faster.
+/// A converged population on a wall at 8 m (5000 flies, `configure`d); then a panel appears
+/// at 4 m over part of the image. Flies within 10 cm of the panel's depth after each of the
+/// first three generations that see it.
+fn flies_on_an_appearing_panel(configure: impl Fn(&mut EngineParams)) -> Vec<usize> {
     let rig = rig();
     let wall = wall_frame(&rig, 8.0, 3, 0);
     let panel = [-0.9, 0.1, 0.4, 1.4, 4.0];
-    let with_panel = [1, 2, 3].map(|id| scene_frame(&rig, 8.0, 3, Some(panel), id));
-    let on_panel = |breeding: f64| {
-        let mut p = params(5000, 7);
-        p.guided_breeding = breeding;
-        let mut e = Engine::new(&rig, p).expect("engine");
-        for _ in 0..10 {
-            e.step(&wall).expect("step");
-        }
-        let mut counts = vec![];
-        for f in &with_panel {
-            e.step(f).expect("step");
+    let mut p = params(5000, 7);
+    configure(&mut p);
+    let mut e = Engine::new(&rig, p).expect("engine");
+    for _ in 0..10 {
+        e.step(&wall).expect("step");
+    }
+    (1..=3)
+        .map(|id| {
+            e.step(&scene_frame(&rig, 8.0, 3, Some(panel), id))
+                .expect("step");
             let pop = e.population();
-            counts.push(
-                (0..pop.len())
-                    .filter(|&i| (pop.z[i] - 4.0).abs() < 0.1 && pop.raw_fitness[i] > 0.0)
-                    .count(),
-            );
-        }
-        counts
-    };
-    let (paper, guided) = (on_panel(0.0), on_panel(0.75));
+            (0..pop.len())
+                .filter(|&i| (pop.z[i] - 4.0).abs() < 0.1 && pop.raw_fitness[i] > 0.0)
+                .count()
+        })
+        .collect()
+}
+
+#[test]
+fn guided_breeding_multiplies_the_flies_on_what_appeared() {
+    // Survivors where the image changed breed, so flies on the panel multiply faster.
+    let paper = flies_on_an_appearing_panel(|p| p.guided_breeding = 0.0);
+    let guided = flies_on_an_appearing_panel(|p| p.guided_breeding = 0.75);
     eprintln!(
         "flies on the panel, generation by generation: {paper:?} without, {guided:?} with guided breeding"
     );
@@ -549,33 +551,10 @@ fn guided_breeding_multiplies_the_flies_on_what_appeared() {
 
 #[test]
 fn the_breeding_tournament_favours_the_flies_that_found_the_obstacle() {
-    // As above, but the panel appears at once in front of a converged wall: among the survivors
-    // where the image changed, the few guided immigrants that landed on the panel compete with
-    // the wall flies around it and the immigrants at the wrong depth.
-    let rig = rig();
-    let wall = wall_frame(&rig, 8.0, 3, 0);
-    let panel = [-0.9, 0.1, 0.4, 1.4, 4.0];
-    let with_panel = [1, 2, 3].map(|id| scene_frame(&rig, 8.0, 3, Some(panel), id));
-    let on_panel = |tournament: u32| {
-        let mut p = params(5000, 7);
-        p.breeding_tournament = tournament;
-        let mut e = Engine::new(&rig, p).expect("engine");
-        for _ in 0..10 {
-            e.step(&wall).expect("step");
-        }
-        let mut counts = vec![];
-        for f in &with_panel {
-            e.step(f).expect("step");
-            let pop = e.population();
-            counts.push(
-                (0..pop.len())
-                    .filter(|&i| (pop.z[i] - 4.0).abs() < 0.1 && pop.raw_fitness[i] > 0.0)
-                    .count(),
-            );
-        }
-        counts
-    };
-    let (uniform, tournament) = (on_panel(1), on_panel(8));
+    // Among the survivors where the image changed, the few guided immigrants that landed on the
+    // panel compete with the wall flies around it and the immigrants at the wrong depth.
+    let uniform = flies_on_an_appearing_panel(|p| p.breeding_tournament = 1);
+    let tournament = flies_on_an_appearing_panel(|p| p.breeding_tournament = 8);
     eprintln!(
         "flies on the panel, generation by generation: {uniform:?} uniform, {tournament:?} with a tournament of 8"
     );
