@@ -569,56 +569,33 @@ impl Engine {
                 *f = self.pop.raw_fitness[i as usize];
             }
         }
-        let guided = unit_threshold(self.params.guided_breeding);
         // Mutation decisions use 16-bit chunks of one draw: P(mutate) = round(rate * 65536) / 65536.
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
-        let local = unit_threshold(self.params.local_mating);
         let sigma = self.params.mutation_sigma as f32;
-        for i in keep..immigrants_from {
-            let r = self.rng.next_u64();
-            let mut a = lemire(r as u32, keep);
-            if breeders > 0 {
-                let g = self.rng.next_u64();
-                if (g as u32) < guided {
-                    // Tournament: the fittest of `tournament` draws, two per random word.
-                    let fit = &self.breeder_fitness[..breeders];
-                    let mut best = lemire((g >> 32) as u32, breeders);
-                    let mut best_f = fit[best];
-                    let mut bits = 0;
-                    for k in 1..tournament {
-                        if k % 2 == 1 {
-                            bits = self.rng.next_u64();
-                        }
-                        let c = lemire((bits >> (32 * (k % 2))) as u32, breeders);
-                        if fit[c] > best_f {
-                            (best, best_f) = (c, fit[c]);
-                        }
-                    }
-                    a = self.breeders[best] as usize;
-                }
-            }
-            let r2 = self.rng.next_u64();
-            let b = if (r2 as u32) < local {
-                self.mates
-                    .pick(self.pop.cell[a], (r2 >> 32) as u32)
-                    .unwrap_or(a)
-            } else {
-                lemire((r >> 32) as u32, keep)
-            };
-            let pop = &self.pop;
-            let l = unit_f32(self.rng.next_u32());
-            let c = crossover(
-                [pop.x[a], pop.y[a], pop.z[a]],
-                [pop.x[b], pop.y[b], pop.z[b]],
-                l,
-            );
-            self.pop.x[i] = c[0];
-            self.pop.y[i] = c[1];
-            self.pop.z[i] = c[2];
-            if let Some(m) = self.masks.get_mut(i - keep) {
-                *m = self.rng.next_u64();
-            }
-        }
+        let pop = &mut self.pop;
+        let (px, cx) = pop.x.split_at_mut(keep);
+        let (py, cy) = pop.y.split_at_mut(keep);
+        let (pz, cz) = pop.z.split_at_mut(keep);
+        let children = immigrants_from - keep;
+        breed(
+            &Breeding {
+                guided: unit_threshold(self.params.guided_breeding),
+                local: unit_threshold(self.params.local_mating),
+                tournament,
+                breeders: &self.breeders[..breeders],
+                breeder_fitness: &self.breeder_fitness[..breeders],
+                mates: &self.mates,
+                cell: &pop.cell[..keep],
+            },
+            [px, py, pz],
+            [
+                &mut cx[..children],
+                &mut cy[..children],
+                &mut cz[..children],
+            ],
+            &mut self.masks,
+            &mut self.rng,
+        );
         let r = keep..immigrants_from;
         mutate(
             [
@@ -796,6 +773,79 @@ impl Engine {
             }
         }
         (p, false)
+    }
+}
+
+/// What the offspring loop reads besides the parents' coordinates.
+struct Breeding<'a> {
+    /// `bits < guided`: the first parent comes from the breeders (a tournament among them).
+    guided: u32,
+    /// `bits < local`: the second parent comes from the first one's cell.
+    local: u32,
+    tournament: usize,
+    /// Survivors where the image changed, and their fitness (before sharing).
+    breeders: &'a [u32],
+    breeder_fitness: &'a [f32],
+    mates: &'a sharing::Mates,
+    /// Sharing cell of each parent.
+    cell: &'a [u32],
+}
+
+/// Writes one crossover offspring per element of `children` from the `parents` (the survivors)
+/// and its mutation coins to `masks`. A function of its own over disjoint slices, so the loop
+/// keeps the slices' pointers in registers (through `&mut self`, every store could have moved
+/// them).
+#[inline(never)]
+fn breed(
+    b: &Breeding,
+    [px, py, pz]: [&[f32]; 3],
+    [cx, cy, cz]: [&mut [f32]; 3],
+    masks: &mut [u64],
+    rng: &mut Xoshiro256PlusPlus,
+) {
+    let keep = px.len().min(py.len()).min(pz.len()).min(b.cell.len());
+    let breeders = b.breeders.len().min(b.breeder_fitness.len());
+    let fit = &b.breeder_fitness[..breeders];
+    if keep == 0 {
+        return;
+    }
+    for i in 0..cx.len().min(cy.len()).min(cz.len()) {
+        let r = rng.next_u64();
+        let mut a = lemire(r as u32, keep);
+        if breeders > 0 {
+            let g = rng.next_u64();
+            if (g as u32) < b.guided {
+                // Tournament: the fittest of `tournament` draws, two per random word.
+                let mut best = lemire((g >> 32) as u32, breeders);
+                let mut best_f = fit[best];
+                let mut bits = 0;
+                for k in 1..b.tournament {
+                    if k % 2 == 1 {
+                        bits = rng.next_u64();
+                    }
+                    let c = lemire((bits >> (32 * (k % 2))) as u32, breeders);
+                    if fit[c] > best_f {
+                        (best, best_f) = (c, fit[c]);
+                    }
+                }
+                a = (b.breeders[best] as usize).min(keep - 1);
+            }
+        }
+        let r2 = rng.next_u64();
+        let m = if (r2 as u32) < b.local {
+            b.mates
+                .pick(b.cell[a], (r2 >> 32) as u32)
+                .unwrap_or(a)
+                .min(keep - 1)
+        } else {
+            lemire((r >> 32) as u32, keep)
+        };
+        let l = unit_f32(rng.next_u32());
+        let c = crossover([px[a], py[a], pz[a]], [px[m], py[m], pz[m]], l);
+        (cx[i], cy[i], cz[i]) = (c[0], c[1], c[2]);
+        if let Some(w) = masks.get_mut(i) {
+            *w = rng.next_u64();
+        }
     }
 }
 
