@@ -338,8 +338,11 @@ fn trunc(x: f32) -> i32 {
     unsafe { x.to_int_unchecked::<i32>() }
 }
 
-/// How many flies ahead the evaluation prefetches windows.
-const PREFETCH_AHEAD: usize = 8;
+/// How many flies ahead the evaluation prefetches windows. The two images (2.5 MB at 640x480)
+/// mostly sit in L2/L3: a short distance only starts the loads a little earlier, and a long
+/// one evicted lines before use (`flyd bench`, interleaved: 2 or 3 ahead 147-148 us, 8 ahead
+/// 151, 16 ahead 153, none 155).
+const PREFETCH_AHEAD: usize = 2;
 
 /// Hints the cache lines of a `W + BPP`-byte window row starting at `data[at]` (a hint only:
 /// an address outside `data` is never dereferenced).
