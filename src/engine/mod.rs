@@ -801,7 +801,7 @@ fn breed(
     [px, py, pz]: [&[f32]; 3],
     [cx, cy, cz]: [&mut [f32]; 3],
     masks: &mut [u64],
-    rng: &mut Xoshiro256PlusPlus,
+    generator: &mut Xoshiro256PlusPlus,
 ) {
     let keep = px.len().min(py.len()).min(pz.len()).min(b.cell.len());
     let breeders = b.breeders.len().min(b.breeder_fitness.len());
@@ -809,6 +809,9 @@ fn breed(
     if keep == 0 {
         return;
     }
+    // A local copy: the generator's state stays in registers (through the reference, each
+    // store to a child could have changed it, so it went through memory on every draw).
+    let mut rng = generator.clone();
     for i in 0..cx.len().min(cy.len()).min(cz.len()) {
         let r = rng.next_u64();
         let mut a = lemire(r as u32, keep);
@@ -847,6 +850,7 @@ fn breed(
             *w = rng.next_u64();
         }
     }
+    *generator = rng;
 }
 
 /// Barycentric crossover: `l * a + (1 - l) * b`.
