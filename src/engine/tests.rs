@@ -412,6 +412,77 @@ fn road_roi_penalises_flies_outside_it() {
 }
 
 #[test]
+fn batched_redraw_draws_what_one_by_one_sampling_would() {
+    // A narrow height band rejects most candidates: several batches, and outsiders that use up
+    // all their attempts.
+    let roi = RoadRoi {
+        max_height: 0.6,
+        min_height: 0.5,
+        max_ahead: 16.0,
+        penalty: 0.0,
+    };
+    let engine = || {
+        let mut e = Engine::new(
+            &rig(),
+            EngineParams {
+                roi: Some(roi),
+                ..params(400, 12)
+            },
+        )
+        .expect("engine");
+        // Every third fly behind the cameras, every fifth above the band.
+        for i in 0..e.pop.len() {
+            if i % 3 == 0 {
+                e.pop.z[i] = -5.0;
+            } else if i % 5 == 0 {
+                e.pop.y[i] = 0.9;
+            }
+        }
+        let n = e.pop.len();
+        e.pop.project(&e.left, &e.right, 0..n);
+        e
+    };
+    let from = 40;
+    let (mut batched, mut reference) = (engine(), engine());
+    let used = batched.redraw_outsiders(from);
+    let mut redrawn = 0;
+    for i in from..reference.pop.len() {
+        let p = [reference.pop.x[i], reference.pop.y[i], reference.pop.z[i]];
+        if reference.pop.u_left[i].is_nan()
+            || reference.pop.u_right[i].is_nan()
+            || !reference.sampler.in_roi(&p)
+        {
+            let (p, _) = reference.sample_fly();
+            (reference.pop.x[i], reference.pop.y[i], reference.pop.z[i]) = (p[0], p[1], p[2]);
+            redrawn += 1;
+        }
+    }
+    assert!(redrawn > 120, "only {redrawn} outsiders");
+    assert!(
+        used > batched.probe.len(),
+        "{used} candidates fit one batch of {}",
+        batched.probe.len()
+    );
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&batched.pop.x), bits(&reference.pop.x));
+    assert_eq!(bits(&batched.pop.y), bits(&reference.pop.y));
+    assert_eq!(bits(&batched.pop.z), bits(&reference.pop.z));
+    // The generator is where the one-by-one draws left it.
+    assert_eq!(batched.rng.next_u64(), reference.rng.next_u64());
+}
+
+#[test]
+fn skipping_a_candidate_draws_what_drawing_it_does() {
+    let e = Engine::new(&rig(), params(100, 3)).expect("engine");
+    let (mut a, mut b) = (e.rng.clone(), e.rng.clone());
+    for _ in 0..5 {
+        e.sampler.candidate(&mut a);
+        Sampler::skip_candidate(&mut b);
+    }
+    assert_eq!(a.next_u64(), b.next_u64());
+}
+
+#[test]
 fn wrong_frame_size_is_an_error() {
     let rig = rig();
     let mut e = Engine::new(&rig, params(100, 5)).expect("engine");
