@@ -915,11 +915,11 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
 /// coins gathers, without branches, the indices of the flies each coordinate moves (into
 /// `hits`, three lists of up to n: `hits` holds 3 per fly), then only those draw a normal,
 /// coordinate by coordinate. Flies beyond `masks` or a third of `hits` are left as they are.
-pub fn mutate<R: Rng>(
+pub fn mutate<R: Rng + Clone>(
     [x, y, z]: [&mut [f32]; 3],
     masks: &[u64],
     hits: &mut [u32],
-    rng: &mut R,
+    generator: &mut R,
     threshold: u32,
     sigma: f32,
 ) {
@@ -944,23 +944,28 @@ pub fn mutate<R: Rng>(
         cy += usize::from((m >> 16) & 0xffff < t);
         cz += usize::from((m >> 32) & 0xffff < t);
     }
-    for (k, list) in [&hx[..cx.min(n)], &hy[..cy.min(n)], &hz[..cz.min(n)]]
-        .into_iter()
-        .enumerate()
-    {
-        for &j in list {
-            let j = j as usize;
-            // z is mutated last: every coordinate's scale is the depth before the mutation.
-            let scale = sigma * z[j].max(1.0);
-            let c = match k {
-                0 => &mut x[j],
-                1 => &mut y[j],
-                _ => &mut z[j],
-            };
-            let g: f32 = StandardNormal.sample(rng);
-            *c += scale * g;
-        }
+    // z is mutated last: every coordinate's scale is the depth before the mutation. One loop
+    // a coordinate, drawing from a local copy of the generator (see `breed`): a loop choosing
+    // its coordinate per draw, through the reference, kept its state and half its values on
+    // the stack.
+    let (x, y, z) = (&mut x[..n], &mut y[..n], &mut z[..n]);
+    let mut rng = generator.clone();
+    for &j in &hx[..cx.min(n)] {
+        let j = j as usize;
+        let g: f32 = StandardNormal.sample(&mut rng);
+        x[j] += sigma * z[j].max(1.0) * g;
     }
+    for &j in &hy[..cy.min(n)] {
+        let j = j as usize;
+        let g: f32 = StandardNormal.sample(&mut rng);
+        y[j] += sigma * z[j].max(1.0) * g;
+    }
+    for &j in &hz[..cz.min(n)] {
+        let j = j as usize;
+        let g: f32 = StandardNormal.sample(&mut rng);
+        z[j] += sigma * z[j].max(1.0) * g;
+    }
+    *generator = rng;
 }
 
 /// Writes `base + j` for every j whose flag is set to the front of `out` and returns how many
