@@ -614,7 +614,8 @@ impl Engine {
     }
 
     /// Replaces flies `from..` with new random flies. Candidates are drawn in bulk and checked
-    /// with the vectorised projection; only the few outside an image are drawn again one by one.
+    /// with the vectorised projection; those outside an image or the road band (about a third)
+    /// are drawn again, in batches ([`Engine::redraw_outsiders`]).
     /// Guided immigrants (drawn where the image changed) probe `immigrant_probes` depths along
     /// their ray against the current frame and keep the fittest.
     fn immigrate(&mut self, from: usize, kernel: &Kernel) {
