@@ -329,7 +329,7 @@ impl Scratch {
 /// so the unchecked conversion is always defined; values within +-2^24 are unchanged. Unlike a
 /// saturating `as`, this vectorises.
 #[inline(always)]
-fn trunc(x: f32) -> i32 {
+pub(super) fn trunc(x: f32) -> i32 {
     const BOUND: f32 = 16_777_216.0;
     // Not `clamp`: it keeps NaN, which must not reach the conversion.
     #[allow(clippy::manual_clamp)]

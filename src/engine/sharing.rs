@@ -15,6 +15,7 @@
 //! Two passes over the flies plus clearing the counts: no allocation.
 
 use super::Population;
+use super::fitness::trunc;
 
 #[derive(Debug, Clone)]
 pub(crate) struct Grid {
@@ -49,10 +50,11 @@ impl Grid {
     /// Sharing cell of a left-image position (inside the image).
     #[inline(always)]
     pub(crate) fn cell(&self, u: f32, v: f32) -> u32 {
-        // u, v >= -0.5: shift to pixel-edge coordinates before binning.
+        // u, v >= -0.5: shift to pixel-edge coordinates before binning. `trunc` of values
+        // clamped at 0 (NaN too): a saturating `as u32` kept the evaluation's cell pass scalar.
         let inv = 1.0 / self.cell_px;
-        let cx = ((u + 0.5) * inv) as u32;
-        let cy = ((v + 0.5) * inv) as u32;
+        let cx = trunc(((u + 0.5) * inv).max(0.0)) as u32;
+        let cy = trunc(((v + 0.5) * inv).max(0.0)) as u32;
         (cy * self.cols + cx).min(self.counts.len() as u32 - 1)
     }
 
