@@ -543,3 +543,127 @@ fn rig_toml_right_camera_may_state_its_own_size() {
     assert_eq!(calib.depth_range, None);
     assert!(calib.has_road);
 }
+
+/// Deterministic byte-level damage to a valid file: what an editor, a truncated copy or a bad
+/// merge does. xorshift, so the cases are the same on every run.
+fn damaged(text: &str, seed: u64) -> String {
+    let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut next = move |n: usize| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        (x % n.max(1) as u64) as usize
+    };
+    let mut bytes = text.as_bytes().to_vec();
+    const TOKENS: [&str; 12] = [
+        "nan", "inf", "-inf", "1e999", "-0", "0", "-1", "1e-320", "\"\"", "[", "=", "\n",
+    ];
+    for _ in 0..1 + next(4) {
+        let len = bytes.len();
+        let at = next(len + 1);
+        match next(5) {
+            // Overwrite a byte with printable noise.
+            0 if len > 0 => bytes[at.min(len - 1)] = b' ' + next(95) as u8,
+            // Cut a stretch out (a truncated copy when it reaches the end).
+            1 => {
+                let end = (at + 1 + next(40)).min(len);
+                bytes.drain(at.min(end)..end);
+            }
+            // Swap a number for a hostile token.
+            2 => {
+                let token = TOKENS[next(TOKENS.len())].as_bytes();
+                let end = (at + next(6)).min(len);
+                bytes.splice(at.min(end)..end, token.iter().copied());
+            }
+            // Duplicate a stretch (a key given twice, a line pasted twice).
+            3 => {
+                let end = (at + 1 + next(60)).min(len);
+                let piece: Vec<u8> = bytes[at.min(end)..end].to_vec();
+                bytes.splice(at.min(end)..at.min(end), piece);
+            }
+            _ => bytes.truncate(at),
+        }
+    }
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+/// Whatever a damaged file parses into is usable: every camera parameter finite, a depth range
+/// (if any) finite and ordered, and a point ahead projecting to a finite pixel or to none.
+fn check_usable(cal: &Calibration, what: &str) {
+    for cam in [&cal.rig.left, &cal.rig.right] {
+        let (k, d, c) = (cam.intrinsics(), cam.distortion(), cam.centre());
+        let values = [
+            k.fx, k.fy, k.cx, k.cy, d.k1, d.k2, d.p1, d.p2, d.k3, c.x, c.y, c.z,
+        ];
+        assert!(
+            values.iter().all(|v| v.is_finite()),
+            "{what}: non-finite camera parameter {values:?}"
+        );
+        assert!(
+            cam.rotation().matrix().iter().all(|v| v.is_finite()),
+            "{what}: rotation"
+        );
+        assert!(cam.width() > 0 && cam.height() > 0, "{what}: empty image");
+        let ahead = cal
+            .rig
+            .left
+            .vehicle_from_camera(&Point3::new(0.1, 0.1, 5.0));
+        if let Some(px) = cam.pixel_from_vehicle(&ahead) {
+            assert!(px.x.is_finite() && px.y.is_finite(), "{what}: NaN pixel");
+        }
+    }
+    if let Some((near, far)) = cal.depth_range {
+        assert!(
+            near.is_finite() && far.is_finite() && 0.0 < near && near < far,
+            "{what}: depth range {near}..{far}"
+        );
+    }
+}
+
+#[test]
+fn damaged_calibration_files_are_errors_or_usable_never_a_panic() {
+    let middlebury = std::fs::read_to_string(fixture("middlebury-motorcycle/calib.txt"))
+        .expect("Middlebury fixture");
+    let yaml = std::fs::read_to_string(fixture("calib/opencv_stereo.yml")).expect("YAML fixture");
+    let toml = std::fs::read_to_string(fixture("calib/rig_explicit.toml")).expect("rig fixture");
+    let origin = Path::new("damaged");
+    let (mut loaded, mut refused) = (0, 0);
+    for seed in 0..2_000u64 {
+        let cases = [
+            (
+                "calib.txt",
+                parse_middlebury(&damaged(&middlebury, seed), origin),
+            ),
+            (
+                "opencv_stereo.yml",
+                parse_opencv_yaml(&damaged(&yaml, seed), origin, &OpenCvImport::default()),
+            ),
+            (
+                "rig_explicit.toml",
+                parse_rig_toml(&damaged(&toml, seed), origin),
+            ),
+        ];
+        for (name, result) in cases {
+            match result {
+                Ok(cal) => {
+                    check_usable(&cal, &format!("{name}, damage seed {seed}"));
+                    loaded += 1;
+                }
+                Err(e) => {
+                    assert!(
+                        e.to_string().contains("damaged"),
+                        "{name}, seed {seed}: error does not name the file: {e}"
+                    );
+                    refused += 1;
+                }
+            }
+        }
+    }
+    // Both outcomes occur: damage that leaves a valid file (a comment, a digit of a value) and
+    // damage that breaks it.
+    println!("damaged calibrations: {loaded} loaded and usable, {refused} refused");
+    assert!(
+        loaded > 200 && refused > 2000,
+        "{loaded} loaded, {refused} refused"
+    );
+}
