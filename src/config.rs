@@ -1108,4 +1108,31 @@ interface = "can0"
             Some("t.u")
         );
     }
+
+    #[test]
+    fn damaged_config_files_are_errors_naming_the_file_never_a_panic() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+        let (mut loaded, mut refused) = (0, 0);
+        for name in ["flyd.toml", "demo.toml"] {
+            let file = path.join(name);
+            let text = std::fs::read_to_string(&file).expect("shipped config");
+            for seed in 0..1_500u64 {
+                match DaemonConfig::from_toml(&crate::test_support::damaged(&text, seed), &file) {
+                    Ok(_) => loaded += 1,
+                    Err(e) => {
+                        assert!(
+                            e.to_string().contains(name),
+                            "{name}, damage seed {seed}: error does not name the file: {e}"
+                        );
+                        refused += 1;
+                    }
+                }
+            }
+        }
+        println!("damaged configs: {loaded} loaded, {refused} refused");
+        assert!(
+            loaded > 100 && refused > 1000,
+            "{loaded} loaded, {refused} refused"
+        );
+    }
 }

@@ -14,3 +14,5 @@ pub mod logging;
 pub mod mock;
 pub mod replay;
 pub mod source;
+#[cfg(test)]
+mod test_support;

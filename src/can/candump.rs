@@ -222,4 +222,27 @@ mod tests {
             Err(Trailing(_))
         ));
     }
+
+    #[test]
+    fn damaged_lines_are_errors_never_a_panic() {
+        let line = "(1700000000.123456) vcan0 12345678#0102030405060708";
+        let (mut parsed, mut refused) = (0, 0);
+        for seed in 0..5_000u64 {
+            match parse_candump_line(&crate::test_support::damaged(line, seed)) {
+                Ok((ts, _, _, data)) => {
+                    assert!(
+                        ts.is_finite() && data.len() <= 64,
+                        "seed {seed}: {ts} {data:?}"
+                    );
+                    parsed += 1;
+                }
+                Err(_) => refused += 1,
+            }
+        }
+        println!("damaged candump lines: {parsed} parsed, {refused} refused");
+        assert!(
+            parsed > 50 && refused > 2000,
+            "{parsed} parsed, {refused} refused"
+        );
+    }
 }
