@@ -126,7 +126,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("flyd: {e:#}");
+            eprintln!("flyd: {}", flyd::logging::error_chain(e.as_ref()));
             ExitCode::FAILURE
         }
     }

@@ -191,3 +191,40 @@ fn missing_file_is_named() {
     assert!(!ok);
     assert!(stderr.contains("/nonexistent/flyd.toml"), "{stderr}");
 }
+
+#[test]
+fn errors_name_their_cause_once() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli-errors");
+    std::fs::create_dir_all(&dir).expect("tmp dir");
+    let bad = dir.join("bad.png");
+    std::fs::write(&bad, b"not a png").expect("write");
+    let (bad, out) = (
+        bad.display().to_string(),
+        dir.join("out").display().to_string(),
+    );
+    let calib = repo("tests/fixtures/middlebury-motorcycle/calib.txt");
+    let png = [
+        "replay", "--left", &bad, "--right", &bad, "--calib", &calib, "--out", &out,
+    ];
+    let size = [
+        "replay",
+        "--scenario",
+        "pedestrian-4m",
+        "--width",
+        "5",
+        "--height",
+        "5",
+        "--out",
+        &out,
+    ];
+    for (args, names, cause) in [
+        (&png[..], "bad.png", "Invalid PNG signature"),
+        (&size[..], "mock camera", "at least 16x16"),
+    ] {
+        let (ok, _, stderr) = flyd(args);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(stderr.contains(names), "{args:?}: {stderr}");
+        // Errors that put their cause in their own message used to print it twice.
+        assert_eq!(stderr.matches(cause).count(), 1, "{args:?}: {stderr}");
+    }
+}
