@@ -100,8 +100,7 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// The same kernel on another instruction set (tests compare them).
-    #[cfg(test)]
+    /// The same kernel on another instruction set (the engine's; tests compare them).
     pub(crate) fn with_isa(mut self, isa: Isa) -> Self {
         self.isa = isa;
         self

@@ -854,3 +854,50 @@ fn every_instruction_set_gives_the_same_fitness() {
     assert_eq!(m_base, m_fast);
     assert!(base == fast, "fitness differs between instruction sets");
 }
+
+#[test]
+fn every_instruction_set_gives_the_same_population() {
+    // The whole engine (evaluation, projections of immigrants, warnings) on the baseline and
+    // on the detected instruction set, through a panel appearing (guided immigrants, probes,
+    // redrawn outsiders) and new frames.
+    use super::fitness::Isa;
+    let detected = Isa::detect();
+    if detected == Isa::Baseline {
+        println!(
+            "SKIP every_instruction_set_gives_the_same_population: only the baseline on this CPU"
+        );
+        return;
+    }
+    let rig = rig();
+    let frames = [
+        wall_frame(&rig, 8.0, 3, 0),
+        scene_frame(&rig, 8.0, 3, Some([-0.9, 0.1, 0.4, 1.4, 4.0]), 1),
+        scene_frame(&rig, 8.0, 3, Some([-0.8, 0.2, 0.4, 1.4, 3.8]), 2),
+    ];
+    let run = |isa| {
+        let mut e = Engine::new(&rig, params(3000, 5)).expect("engine");
+        e.isa = isa;
+        let stats: Vec<String> = (0..24)
+            .map(|g| format!("{:?}", e.step(&frames[g / 8]).expect("step")))
+            .collect();
+        (e.population().clone(), stats)
+    };
+    let ((base, base_stats), (fast, fast_stats)) = (run(Isa::Baseline), run(detected));
+    assert!(
+        base_stats
+            .iter()
+            .any(|s| s.contains("probes: ") && !s.contains("probes: 0")),
+        "the panel should have been probed: {base_stats:?}"
+    );
+    assert_eq!(base_stats, fast_stats);
+    let bits = |p: &Population| -> Vec<u32> {
+        [&p.x, &p.y, &p.z, &p.raw_fitness, &p.warning, &p.u_right]
+            .iter()
+            .flat_map(|v| v.iter().map(|f| f.to_bits()))
+            .collect()
+    };
+    assert!(
+        bits(&base) == bits(&fast),
+        "populations differ between instruction sets"
+    );
+}
