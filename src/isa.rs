@@ -2,9 +2,10 @@
 //!
 //! The release build targets the x86-64 baseline (SSE2), so one binary runs on any vehicle PC.
 //! The hottest loops (fitness evaluation, frame preparation, the immigrants' projection, the
-//! warnings) are also compiled with AVX2 and the CPU chooses at start. Every path gives bit-identical results (integer arithmetic, the same
-//! f32 operations in the same order; Rust never fuses a multiply and an add on its own): the
-//! choice changes speed, never a fitness, a fly or a frame. Tests compare the paths.
+//! warnings) are also compiled with AVX2 and the CPU chooses at start. Every path gives
+//! bit-identical results (integer arithmetic, the same f32 operations in the same order; Rust
+//! never fuses a multiply and an add on its own): the choice changes speed, never a fitness, a
+//! fly or a frame. Tests compare the paths.
 
 /// An instruction set a hot loop can run on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -80,7 +80,8 @@ const fn mask16<const W: usize>(radius: usize, channels: usize) -> [i16; W] {
 }
 
 impl<'a> Kernel<'a> {
-    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams) -> Self {
+    /// The kernel for `frame` on instruction set `isa` (the engine's, detected once).
+    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams, isa: Isa) -> Self {
         let radius = params.neighbourhood_radius as usize;
         // Channels present in *both* images (a grey camera paired with a colour one compares grey).
         let channels = frame.left.channels().min(frame.right.channels()) as usize;
@@ -96,14 +97,8 @@ impl<'a> Kernel<'a> {
             roi: params.roi,
             channels,
             match_ssd: (MATCH_SSD_PER_SAMPLE * samples as f64) as f32,
-            isa: Isa::detect(),
+            isa,
         }
-    }
-
-    /// The same kernel on another instruction set (the engine's; tests compare them).
-    pub(crate) fn with_isa(mut self, isa: Isa) -> Self {
-        self.isa = isa;
-        self
     }
 
     /// Gradient byte of the left image at the pixel nearest to `(u, v)` (0 outside it).

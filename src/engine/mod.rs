@@ -411,7 +411,7 @@ impl Engine {
             // Before reproduction, so this generation's immigrants already go where it changed.
             self.change.update(frame.left.block_means());
         }
-        let kernel = Kernel::new(frame, &self.params).with_isa(self.isa);
+        let kernel = Kernel::new(frame, &self.params, self.isa);
         if self.frame_id.is_some() {
             if new_frame {
                 self.refresh_changed(&kernel);
