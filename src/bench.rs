@@ -6,7 +6,7 @@
 //! (a pair every 3 generations at 30 fps and ~10 ms a generation). Frames are rendered and
 //! prepared before timing starts: only `Engine::step` is timed.
 
-use crate::engine::{Engine, EngineParams};
+use crate::engine::{Engine, EngineParams, phase};
 use crate::frame::{PixelFormat, PreparedImage, StereoFrame};
 use crate::mock::MockStereo;
 use crate::replay::Timing;
@@ -39,6 +39,9 @@ pub struct GenerationReport {
     pub same_frame: Timing,
     /// Flies evaluated per second over the run.
     pub flies_per_second: f64,
+    /// Median microseconds a generation in each step (built with `--features phase-timers`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub phases_us: Option<Vec<(&'static str, f64)>>,
 }
 
 impl std::fmt::Display for GenerationReport {
@@ -63,7 +66,14 @@ impl std::fmt::Display for GenerationReport {
             f,
             "  {:.3e} flies evaluated per second",
             self.flies_per_second
-        )
+        )?;
+        if let Some(phases) = &self.phases_us {
+            write!(f, "\n  median us a generation:")?;
+            for (name, us) in phases {
+                write!(f, " {name} {us:.1}")?;
+            }
+        }
+        Ok(())
     }
 }
 
@@ -91,7 +101,11 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
     let (mut all, mut new, mut same) = (Vec::new(), Vec::new(), Vec::new());
     let mut evaluated = 0usize;
     let mut total = Duration::ZERO;
+    let mut phases: Vec<Vec<Duration>> = vec![Vec::new(); phase::Phase::ALL.len()];
     for g in 0..warmup + cfg.generations {
+        if g == warmup {
+            phase::take();
+        }
         let frame = &frames[((g / k) % 2) as usize];
         let t = Instant::now();
         let stats = engine.step(frame)?;
@@ -100,6 +114,11 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
             all.push(dt);
             total += dt;
             evaluated += stats.evaluated;
+            if let Some(p) = phase::take() {
+                for (k, &(_, ns)) in p.iter().enumerate() {
+                    phases[k].push(Duration::from_nanos(ns));
+                }
+            }
             if stats.new_frame {
                 new.push(dt);
             } else {
@@ -107,6 +126,13 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
             }
         }
     }
+    let phases_us = phase::take().map(|_| {
+        phase::Phase::ALL
+            .iter()
+            .zip(&mut phases)
+            .map(|(p, d)| (p.name(), Timing::of(d).median_us))
+            .collect()
+    });
     Ok(GenerationReport {
         flies: cfg.flies,
         width: cfg.width,
@@ -117,5 +143,6 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
         new_frame: Timing::of(&mut new),
         same_frame: Timing::of(&mut same),
         flies_per_second: evaluated as f64 / total.as_secs_f64().max(1e-9),
+        phases_us,
     })
 }

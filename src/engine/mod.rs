@@ -51,6 +51,7 @@
 mod change;
 mod fitness;
 mod params;
+pub mod phase;
 mod projector;
 mod select;
 mod sharing;
@@ -60,6 +61,7 @@ pub use params::{EngineParams, ParamError, RoadRoi};
 use crate::frame::{BLOCK, StereoFrame};
 use crate::geometry::StereoRig;
 use fitness::{Isa, Kernel};
+use phase::Phase;
 use projector::Projector;
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{Rng, SeedableRng};
@@ -414,6 +416,7 @@ impl Engine {
         let kernel = Kernel::new(frame, &self.params, self.isa);
         if self.frame_id.is_some() {
             if new_frame {
+                let _t = phase::start(Phase::Refresh);
                 self.refresh_changed(&kernel);
             }
             self.reproduce(&kernel);
@@ -424,6 +427,7 @@ impl Engine {
         }
         let from = self.unevaluated_from;
         let n = self.pop.len();
+        let t = phase::start(Phase::Evaluate);
         let matches = kernel.evaluate(
             &self.left,
             &self.right,
@@ -433,8 +437,13 @@ impl Engine {
             &mut self.scratch,
         );
         self.unevaluated_from = n;
+        t.stop();
+        let t = phase::start(Phase::Share);
         self.sharing.apply(&mut self.pop);
+        t.stop();
+        let t = phase::start(Phase::Warnings);
         let (global_warning, danger, mean_fitness, visible) = self.warnings();
+        t.stop();
 
         self.stats = GenerationStats {
             generation: self.stats.generation + 1,
@@ -531,8 +540,11 @@ impl Engine {
         let n = self.pop.len();
         let keep = self.params.survivors();
         let immigrants_from = n - self.params.immigrants();
+        let t = phase::start(Phase::Select);
         self.selector
             .select(&self.pop.fitness, keep, &mut self.chosen);
+        t.stop();
+        let t = phase::start(Phase::Compact);
         // Compact: each non-survivor slot below `keep` takes a survivor from above it, the k-th
         // hole the k-th such survivor. There are exactly as many of one as of the other.
         // Survivors already below `keep` (the usual case for long-lived flies) do not move. The
@@ -543,9 +555,13 @@ impl Engine {
             self.pop
                 .move_fly(self.holes[k] as usize, self.movers[k] as usize);
         }
+        t.stop();
+        let t = phase::start(Phase::Mates);
         if self.params.local_mating > 0.0 {
             self.mates.index(&self.pop.cell[..keep]);
         }
+        t.stop();
+        let t = phase::start(Phase::Breed);
         // Survivors where the image changed (none on a static scene: then no extra draws).
         let breeders = if self.params.guided_breeding > 0.0 && self.change.total > 0.0 {
             let (change, pop) = (&self.change, &self.pop);
@@ -591,6 +607,8 @@ impl Engine {
             &mut self.masks,
             &mut self.rng,
         );
+        t.stop();
+        let t = phase::start(Phase::Mutate);
         let r = keep..immigrants_from;
         mutate(
             [
@@ -604,6 +622,8 @@ impl Engine {
             threshold,
             sigma,
         );
+        t.stop();
+        let _t = phase::start(Phase::Immigrate);
         self.immigrate(immigrants_from, kernel);
         self.unevaluated_from = keep;
     }
