@@ -199,15 +199,15 @@ fn check_buffers(
             height,
         });
     }
-    if let Some(d) = depth {
-        if d.len() != pixels {
-            return Err(RenderError::DepthBufferSize {
-                expected: pixels,
-                got: d.len(),
-                width,
-                height,
-            });
-        }
+    if let Some(d) = depth
+        && d.len() != pixels
+    {
+        return Err(RenderError::DepthBufferSize {
+            expected: pixels,
+            got: d.len(),
+            width,
+            height,
+        });
     }
     Ok(pixels)
 }

@@ -765,11 +765,11 @@ pub(crate) fn trace(
     let mut best = ground_or_sky(ray, travelled);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
     for o in props.iter().chain(obstacles) {
-        if let Some(hit) = o.intersect(ray) {
-            if hit.t < best.t {
-                best.t = hit.t;
-                best_hit = Some((o, hit));
-            }
+        if let Some(hit) = o.intersect(ray)
+            && hit.t < best.t
+        {
+            best.t = hit.t;
+            best_hit = Some((o, hit));
         }
     }
     match best_hit {

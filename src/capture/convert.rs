@@ -174,7 +174,7 @@ fn check_uncompressed(
     stride: usize,
 ) -> Result<usize, ConvertError> {
     let row = format.packed_row_bytes(width).unwrap_or(0);
-    if format == CaptureFormat::Yuyv && width % 2 != 0 {
+    if format == CaptureFormat::Yuyv && !width.is_multiple_of(2) {
         return Err(ConvertError::Geometry {
             format,
             width: width as u32,

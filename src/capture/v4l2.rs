@@ -99,7 +99,7 @@ impl V4l2Config {
                 return err(key, format!("{v} is outside 8..=8192"));
             }
         }
-        if self.format == CaptureFormat::Yuyv && self.width % 2 != 0 {
+        if self.format == CaptureFormat::Yuyv && !self.width.is_multiple_of(2) {
             return err(
                 "width",
                 format!("{} is odd; YUYV needs an even width", self.width),

@@ -195,10 +195,10 @@ impl EvolutionThread {
     /// stereo frame under a new id.
     fn take_pair(&mut self) -> Option<(FrameMeta, FrameMeta)> {
         for (side, reader) in [(Side::Left, &mut self.left), (Side::Right, &mut self.right)] {
-            if reader.fetch() {
-                if let Some(slot) = reader.slot() {
-                    self.pairer.offer(side, slot.meta);
-                }
+            if reader.fetch()
+                && let Some(slot) = reader.slot()
+            {
+                self.pairer.offer(side, slot.meta);
             }
         }
         match self.pairer.try_pair() {

@@ -76,11 +76,11 @@ impl ServiceNotifier {
     }
 
     fn send(&mut self, states: &[NotifyState]) {
-        if let Err(error) = sd_notify::notify(states) {
-            if !self.failed_once {
-                tracing::warn!(%error, "systemd notification failed (not retried in the log)");
-                self.failed_once = true;
-            }
+        if let Err(error) = sd_notify::notify(states)
+            && !self.failed_once
+        {
+            tracing::warn!(%error, "systemd notification failed (not retried in the log)");
+            self.failed_once = true;
         }
     }
 

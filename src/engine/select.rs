@@ -166,7 +166,7 @@ mod tests {
                 x ^= x << 13;
                 x ^= x >> 17;
                 x ^= x << 5;
-                if x % 7 == 0 {
+                if x.is_multiple_of(7) {
                     0.0
                 } else {
                     (x % 100_000) as f32 * 1e-3

@@ -431,7 +431,7 @@ fn main() -> Result<()> {
         }
         if index == 0 {
             eprintln!("flyd-feeder: first frame written");
-        } else if index % 150 == 0 {
+        } else if index.is_multiple_of(150) {
             eprintln!(
                 "flyd-feeder: frame {index}, {:.1} fps",
                 f64::from(index) / start.elapsed().as_secs_f64()

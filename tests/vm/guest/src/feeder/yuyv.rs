@@ -4,7 +4,10 @@
 /// Converts packed RGB8 (`width * height * 3` bytes) into YUYV (`width * height * 2` bytes).
 /// Each pair of pixels shares the mean of their chroma. `width` must be even.
 pub fn rgb_to_yuyv(rgb: &[u8], width: usize, yuyv: &mut [u8]) {
-    assert!(width % 2 == 0, "YUYV needs an even width, got {width}");
+    assert!(
+        width.is_multiple_of(2),
+        "YUYV needs an even width, got {width}"
+    );
     assert_eq!(rgb.len() / 3 * 2, yuyv.len(), "RGB and YUYV sizes differ");
     for (px, out) in rgb.chunks_exact(6).zip(yuyv.chunks_exact_mut(4)) {
         let (y0, u0, v0) = ycbcr(px[0], px[1], px[2]);
