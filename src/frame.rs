@@ -233,9 +233,9 @@ impl PreparedImage {
     fn prepare_on(&mut self, isa: Isa, format: PixelFormat, pixels: &[u8]) {
         match isa {
             Isa::Baseline => self.prepare_with(format, pixels),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.prepare_avx2(format, pixels) },
+            Isa::Avx2 | Isa::Avx512 => unsafe { self.prepare_avx2(format, pixels) },
         }
     }
 

@@ -2,7 +2,8 @@
 //!
 //! The release build targets the x86-64 baseline (SSE2), so one binary runs on any vehicle PC.
 //! The hottest loops (fitness evaluation, frame preparation, the immigrants' projection, the
-//! warnings) are also compiled with AVX2 and the CPU chooses at start. Every path gives
+//! warnings) are also compiled with AVX2, the evaluation's window kernel also with AVX-512
+//! (one 32-byte window row a vector), and the CPU chooses at start. Every path gives
 //! bit-identical results (integer arithmetic, the same f32 operations in the same order; Rust
 //! never fuses a multiply and an add on its own): the choice changes speed, never a fitness, a
 //! fly or a frame. Tests compare the paths.
@@ -15,15 +16,30 @@ pub(crate) enum Isa {
     /// AVX2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
     #[cfg(target_arch = "x86_64")]
     Avx2,
+    /// AVX-512 F/BW/VL on top of AVX2 (x86-64-v4: Intel server CPUs since 2017, AMD since Zen 4).
+    /// Only the evaluation's window kernel has a 512-bit path; the other loops run their AVX2 one.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
 }
 
 impl Isa {
     /// The best instruction set this CPU has (std caches the CPUID query).
     pub(crate) fn detect() -> Self {
+        Self::available().last().copied().unwrap_or(Isa::Baseline)
+    }
+
+    /// Every instruction set this CPU has, baseline first, best last (what the tests compare).
+    pub(crate) fn available() -> &'static [Isa] {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx2") && has!("avx512f") && has!("avx512bw") && has!("avx512vl") {
+                return &[Isa::Baseline, Isa::Avx2, Isa::Avx512];
+            }
+            if has!("avx2") {
+                return &[Isa::Baseline, Isa::Avx2];
+            }
         }
-        Isa::Baseline
+        &[Isa::Baseline]
     }
 }

@@ -19,7 +19,9 @@
 //!   load of 16 or 32 bytes (4 bytes per pixel, [`crate::frame`]) under a byte mask that drops the
 //!   gradient byte, unused channels and the bytes past the window. Fixed widths let the compiler
 //!   turn each row into a handful of SIMD instructions on any x86-64 (SSE2 baseline), with no
-//!   `unsafe` and no runtime dispatch.
+//!   `unsafe`; the AVX2 and AVX-512 kernels, chosen at run time ([`Isa`]), give the same
+//!   integers with fewer instructions (AVX-512: a whole 32-byte row in one vector) and trust
+//!   their caller's single bounds check a window.
 //! - `floor = ssd_floor` (grey levels squared per sample) guards the division.
 //! - The road region of interest is applied here too (a multiplier on F).
 
@@ -53,6 +55,11 @@ pub(crate) struct Kernel<'a> {
     isa: Isa,
 }
 
+/// Instruction-set levels of the evaluation's instantiations (a const parameter).
+const BASE: u8 = 0;
+const AVX2: u8 = 1;
+const AVX512: u8 = 2;
+
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.
 /// A compile-time constant in the kernel, so masking costs one vector AND.
 const fn mask<const W: usize>(radius: usize, channels: usize) -> [u8; W] {
@@ -61,6 +68,20 @@ const fn mask<const W: usize>(radius: usize, channels: usize) -> [u8; W] {
     while k < W {
         if k < (2 * radius + 1) * BPP && k % BPP < channels {
             m[k] = 0xff;
+        }
+        k += 1;
+    }
+    m
+}
+
+/// [`mask`] as one bit per byte (the AVX-512 kernel's lane mask).
+const fn mask_bits<const W: usize>(radius: usize, channels: usize) -> u64 {
+    let bytes = mask::<W>(radius, channels);
+    let mut m = 0u64;
+    let mut k = 0;
+    while k < W && k < 64 {
+        if bytes[k] != 0 {
+            m |= 1 << k;
         }
         k += 1;
     }
@@ -124,11 +145,29 @@ impl<'a> Kernel<'a> {
         scratch: &mut Scratch,
     ) -> Matches {
         match self.isa {
-            Isa::Baseline => self.evaluate_on::<false>(left, right, pop, range, grid, scratch),
+            Isa::Baseline => self.evaluate_on(left, right, pop, range, grid, scratch),
             // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
             #[cfg(target_arch = "x86_64")]
             Isa::Avx2 => unsafe { self.evaluate_avx2(left, right, pop, range, grid, scratch) },
+            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { self.evaluate_avx512(left, right, pop, range, grid, scratch) },
         }
+    }
+
+    /// The evaluation compiled with AVX-512 enabled (a window row in one 512-bit vector).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    unsafe fn evaluate_avx512(
+        &self,
+        left: &Projector,
+        right: &Projector,
+        pop: &mut Population,
+        range: Range<usize>,
+        grid: &Grid,
+        scratch: &mut Scratch,
+    ) -> Matches {
+        self.evaluate_on(left, right, pop, range, grid, scratch)
     }
 
     /// The evaluation compiled with AVX2 enabled (projection, scalar code and SSD alike).
@@ -143,11 +182,11 @@ impl<'a> Kernel<'a> {
         grid: &Grid,
         scratch: &mut Scratch,
     ) -> Matches {
-        self.evaluate_on::<true>(left, right, pop, range, grid, scratch)
+        self.evaluate_on(left, right, pop, range, grid, scratch)
     }
 
     #[inline(always)]
-    fn evaluate_on<const AVX2: bool>(
+    fn evaluate_on(
         &self,
         left: &Projector,
         right: &Projector,
@@ -158,17 +197,17 @@ impl<'a> Kernel<'a> {
     ) -> Matches {
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1, AVX2>(left, right, pop, range, grid, scratch),
-            (1, _) => self.evaluate_with::<16, 1, 3, AVX2>(left, right, pop, range, grid, scratch),
-            (2, 1) => self.evaluate_with::<32, 2, 1, AVX2>(left, right, pop, range, grid, scratch),
-            (2, _) => self.evaluate_with::<32, 2, 3, AVX2>(left, right, pop, range, grid, scratch),
-            (_, 1) => self.evaluate_with::<32, 3, 1, AVX2>(left, right, pop, range, grid, scratch),
-            (_, _) => self.evaluate_with::<32, 3, 3, AVX2>(left, right, pop, range, grid, scratch),
+            (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, range, grid, scratch),
+            (1, _) => self.evaluate_with::<16, 1, 3>(left, right, pop, range, grid, scratch),
+            (2, 1) => self.evaluate_with::<32, 2, 1>(left, right, pop, range, grid, scratch),
+            (2, _) => self.evaluate_with::<32, 2, 3>(left, right, pop, range, grid, scratch),
+            (_, 1) => self.evaluate_with::<32, 3, 1>(left, right, pop, range, grid, scratch),
+            (_, _) => self.evaluate_with::<32, 3, 3>(left, right, pop, range, grid, scratch),
         }
     }
 
     #[inline(always)]
-    fn evaluate_with<const W: usize, const R: usize, const C: usize, const AVX2: bool>(
+    fn evaluate_with<const W: usize, const R: usize, const C: usize>(
         &self,
         left: &Projector,
         right: &Projector,
@@ -179,6 +218,7 @@ impl<'a> Kernel<'a> {
     ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
         let mask16 = &const { mask16::<W>(R, C) };
+        let mask_bits = const { mask_bits::<W>(R, C) };
         let (ld, rd) = (self.left.data(), self.right.data());
         let (ls, rs) = (self.left.stride(), self.right.stride());
         let rows = 2 * R + 1;
@@ -228,51 +268,33 @@ impl<'a> Kernel<'a> {
             let uri = ur_shift.floor();
             ts[i] = trunc((ur_shift - uri) * 128.0 + 0.5) as u16;
             let (uri, vri) = (trunc(uri), trunc(vr + 0.5));
-            lo[i] = self.left.offset32(uli - R as i32, vli - R as i32);
+            // A fly outside an image is marked by an offset past every buffer (pass 2).
+            lo[i] = if outside {
+                u32::MAX
+            } else {
+                self.left.offset32(uli - R as i32, vli - R as i32)
+            };
             ro[i] = self.right.offset32(uri - R as i32, vri - R as i32);
             cells[i] = if outside { u32::MAX } else { grid.cell(ul, vl) };
         }
 
-        // 2. The windows: gradients and SSD, one fly at a time. The windows are scattered over
-        //    two images larger than L2: the rows of the fly a few places ahead are fetched
-        //    while this one is compared.
-        let n_rows = rows.div_ceil(row_step);
-        let (lstep, rstep) = (ls * row_step, rs * row_step);
-        for i in 0..len {
-            if let (Some(&a), Some(&b)) = (lo.get(i + PREFETCH_AHEAD), ro.get(i + PREFETCH_AHEAD)) {
-                for j in 0..n_rows {
-                    prefetch::<W>(ld, a as usize + j * lstep);
-                    prefetch::<W>(rd, b as usize + j * rstep);
-                }
-            }
-            let (l, r) = (lo[i] as usize, ro[i] as usize);
-            // -1 = not compared: outside an image (or, defensively, a window off the buffer).
-            ssds[i] = -1.0;
-            if cells[i] == u32::MAX {
-                continue;
-            }
-            let (Some(&gl), Some(&gr)) = (ld.get(l + gl_at), rd.get(r + gr_at)) else {
-                continue;
-            };
-            let t = ts[i];
-            let ssd = match () {
-                // SAFETY: AVX2 is true only inside `evaluate_avx2`, entered after detection.
-                #[cfg(target_arch = "x86_64")]
-                () if AVX2 => unsafe {
-                    avx2::ssd::<W>(ld, l, lstep, rd, r, rstep, n_rows, mask16, t)
-                },
-                () => ssd::<W>(ld, l, lstep, rd, r, rstep, n_rows, mask, t),
-            };
-            grads[i] = gl as f32 * gr as f32;
-            ssds[i] = ssd as f32;
-        }
+        // 2. The windows: gradients and SSD, one fly at a time.
+        let windows = Windows {
+            left: (ld, ls * row_step, gl_at),
+            right: (rd, rs * row_step, gr_at),
+            n_rows: rows.div_ceil(row_step),
+            mask,
+            mask16,
+            mask_bits,
+        };
+        windows.compare(self.isa, lo, ro, ts, grads, ssds);
 
         // 3. Fitness, region of interest and match counts: straight-line again.
         let mut m = Matches::default();
         for i in 0..len {
-            let compared = ssds[i] >= 0.0;
+            let compared = ssds[i] >= 0;
             let (g, ssd) = if compared {
-                (grads[i], ssds[i])
+                (grads[i] as f32, ssds[i] as f32)
             } else {
                 (0.0, 0.0)
             };
@@ -288,6 +310,180 @@ impl<'a> Kernel<'a> {
     }
 }
 
+/// The window comparison of one evaluation (its pass 2): for each fly, the product of the
+/// gradient bytes at the two windows' centres and the SSD of the windows.
+#[derive(Clone, Copy)]
+struct Windows<'a, const W: usize> {
+    /// Image data, bytes between compared rows, offset of the centre's gradient byte.
+    left: (&'a [u8], usize, usize),
+    right: (&'a [u8], usize, usize),
+    /// Rows compared.
+    n_rows: usize,
+    mask: &'a [u8; W],
+    mask16: &'a [i16; W],
+    mask_bits: u64,
+}
+
+impl<const W: usize> Windows<'_, W> {
+    /// [`Windows::run`] on instruction set `isa`, in a function of its own: inlined into the
+    /// whole evaluation, its loop lost half its registers to the stack.
+    fn compare(
+        &self,
+        isa: Isa,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        match isa {
+            Isa::Baseline => self.unrolled::<BASE>(lo, ro, ts, grads, ssds),
+            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { self.compare_avx2(lo, ro, ts, grads, ssds) },
+            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { self.compare_avx512(lo, ro, ts, grads, ssds) },
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    #[inline(never)]
+    unsafe fn compare_avx512(
+        &self,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        self.unrolled::<AVX512>(lo, ro, ts, grads, ssds);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    unsafe fn compare_avx2(
+        &self,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        self.unrolled::<AVX2>(lo, ro, ts, grads, ssds);
+    }
+
+    /// The default neighbourhood's three compared rows get an instantiation of their own
+    /// (rows and prefetches fully unrolled).
+    #[inline(always)]
+    fn unrolled<const SIMD: u8>(
+        &self,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        match self.n_rows {
+            3 => Windows { n_rows: 3, ..*self }.run::<SIMD>(lo, ro, ts, grads, ssds),
+            _ => self.run::<SIMD>(lo, ro, ts, grads, ssds),
+        }
+    }
+
+    /// Fills `grads` (`gl * gr`) and `ssds` for the flies at offsets `lo`, `ro` with sub-pixel
+    /// weights `ts` (/128); `ssds` is -1 for a fly not compared: a window that would reach
+    /// past an image's buffer, which is how pass 1 marks a fly outside an image (`lo` MAX).
+    #[inline(always)]
+    fn run<const SIMD: u8>(
+        &self,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        let ((ld, lstep, gl_at), (rd, rstep, gr_at)) = (self.left, self.right);
+        let n_rows = self.n_rows;
+        let last = n_rows.saturating_sub(1);
+        // Bytes a window needs from its first one: every compared row (the right one a pixel
+        // wider, for the interpolation) and the centre's gradient byte. One bounds check per
+        // window and image, instead of one per load.
+        let lneed = (last * lstep + W).max(gl_at + 1);
+        let rneed = (last * rstep + W + 2 * BPP).max(gr_at + 1);
+        let (Some(lmax), Some(rmax)) = (ld.len().checked_sub(lneed), rd.len().checked_sub(rneed))
+        else {
+            ssds.fill(-1);
+            return;
+        };
+        let len = lo.len().min(ro.len()).min(ts.len());
+        let (grads, ssds) = (&mut grads[..len], &mut ssds[..len]);
+        for i in 0..len {
+            // The windows are scattered over two images larger than L2: the rows of the fly a
+            // few places ahead are fetched while this one is compared.
+            if let (Some(&a), Some(&b)) = (lo.get(i + PREFETCH_AHEAD), ro.get(i + PREFETCH_AHEAD)) {
+                for j in 0..n_rows {
+                    prefetch::<W>(ld, a as usize + j * lstep);
+                    prefetch::<W>(rd, b as usize + j * rstep);
+                }
+            }
+            let (l, r) = (lo[i] as usize, ro[i] as usize);
+            ssds[i] = -1;
+            if (l > lmax) | (r > rmax) {
+                continue;
+            }
+            // SAFETY: l <= lmax = ld.len() - lneed and gl_at < lneed, so l + gl_at < ld.len();
+            // the same for the right image.
+            let (gl, gr) = unsafe { (*ld.get_unchecked(l + gl_at), *rd.get_unchecked(r + gr_at)) };
+            // t = 128 is all of the next pixel: the same bytes as t = 0 one pixel on (the SIMD
+            // kernels need t < 128; `rneed` has room for the pixel more). The gradient stays
+            // the one at the window's own centre.
+            let (rw, t) = if ts[i] >= 128 {
+                (r + BPP, 0)
+            } else {
+                (r, ts[i])
+            };
+            let ssd = match () {
+                // SAFETY: SIMD is AVX512 only inside `compare_avx512`, entered after
+                // detection; the windows lie inside the buffers (checked above against
+                // `lneed`, `rneed`).
+                #[cfg(target_arch = "x86_64")]
+                () if SIMD == AVX512 => unsafe {
+                    avx512::ssd::<W>(
+                        ld.as_ptr().add(l),
+                        lstep,
+                        rd.as_ptr().add(rw),
+                        rstep,
+                        n_rows,
+                        self.mask16,
+                        self.mask_bits,
+                        t,
+                    )
+                },
+                // SAFETY: as above, inside `compare_avx2`.
+                #[cfg(target_arch = "x86_64")]
+                () if SIMD == AVX2 => unsafe {
+                    avx2::ssd::<W>(
+                        ld.as_ptr().add(l),
+                        lstep,
+                        rd.as_ptr().add(rw),
+                        rstep,
+                        n_rows,
+                        self.mask16,
+                        t,
+                    )
+                },
+                () => ssd::<W>(ld, l, lstep, rd, rw, rstep, n_rows, self.mask, t),
+            };
+            grads[i] = i32::from(gl) * i32::from(gr);
+            // At most 255^2 per sample, or the baseline's u32::MAX / 2 = i32::MAX for a
+            // window off the buffer: inside an i32.
+            ssds[i] = ssd as i32;
+        }
+    }
+}
+
 /// Per-fly intermediate values of an evaluation, sized once (no allocation per generation).
 #[derive(Debug, Clone)]
 pub(crate) struct Scratch {
@@ -297,9 +493,9 @@ pub(crate) struct Scratch {
     /// Sub-pixel weight of the right window, /128.
     t: Vec<u16>,
     /// `gl * gr` of the compared flies.
-    grads: Vec<f32>,
+    grads: Vec<i32>,
     /// SSD of the compared flies, -1 for the others.
-    ssd: Vec<f32>,
+    ssd: Vec<i32>,
 }
 
 impl Scratch {
@@ -309,8 +505,8 @@ impl Scratch {
             lo: vec![0; flies],
             ro: vec![0; flies],
             t: vec![0; flies],
-            grads: vec![0.0; flies],
-            ssd: vec![0.0; flies],
+            grads: vec![0; flies],
+            ssd: vec![0; flies],
         }
     }
 
@@ -440,15 +636,15 @@ fn row_ssd<const W: usize>(a: &[u8; W], b0: &[u8; W], b1: &[u8; W], t: u16, mask
             return 0;
         };
         let mut sum = chunk(a0, b00, b10, m0);
-        if W == 32 {
-            if let (Some(a1), Some(b01), Some(b11), Some(m1)) = (
+        if W == 32
+            && let (Some(a1), Some(b01), Some(b11), Some(m1)) = (
                 a.last_chunk::<16>(),
                 b0.last_chunk::<16>(),
                 b1.last_chunk::<16>(),
                 mask.last_chunk::<16>(),
-            ) {
-                sum = _mm_add_epi32(sum, chunk(a1, b01, b11, m1));
-            }
+            )
+        {
+            sum = _mm_add_epi32(sum, chunk(a1, b01, b11, m1));
         }
         let sum = _mm_add_epi32(sum, _mm_shuffle_epi32(sum, 0b01_00_11_10));
         let sum = _mm_add_epi32(sum, _mm_shuffle_epi32(sum, 0b10_11_00_01));
@@ -465,39 +661,30 @@ mod avx2 {
     use super::BPP;
     use std::arch::x86_64::*;
 
-    /// Same contract and result as [`super::ssd`]; `mask` is the byte mask widened to lanes.
+    /// The result of [`super::ssd`] for the windows at `l` and `r` (rows `ls`, `rs` bytes
+    /// apart); `mask` is the byte mask widened to lanes. W is 16 or 32 (0 otherwise), and
+    /// `t < 128` (t << 8 inside an i16; pass 2 maps 128 to 0 one pixel on).
     ///
     /// # Safety
-    /// The CPU must support AVX2.
+    /// The CPU must support AVX2; for every `j < rows`, `W` bytes at `l + j * ls` and
+    /// `W + BPP` bytes at `r + j * rs` must be readable.
     #[target_feature(enable = "avx2")]
     #[inline]
-    #[allow(clippy::too_many_arguments)]
     pub(super) unsafe fn ssd<const W: usize>(
-        l: &[u8],
-        lo: usize,
+        l: *const u8,
         ls: usize,
-        r: &[u8],
-        ro: usize,
+        r: *const u8,
         rs: usize,
         rows: usize,
         mask: &[i16; W],
         t: u16,
     ) -> u32 {
-        // t = 128 is all of the next pixel: the same bytes as t = 0 one pixel on, and keeps
-        // t << 8 inside an i16.
-        let (ro, t) = if t >= 128 { (ro + BPP, 0) } else { (ro, t) };
-        let last = rows.saturating_sub(1);
-        // One bounds check for the whole window instead of one per load.
-        if rows == 0
-            || lo + last * ls + W > l.len()
-            || ro + last * rs + W + BPP > r.len()
-            || !(W == 16 || W == 32)
-        {
-            return u32::MAX / 2;
+        debug_assert!(t < 128);
+        if !(W == 16 || W == 32) {
+            return 0;
         }
-        let (lp, rp) = (l.as_ptr(), r.as_ptr());
-        // SAFETY: every load below reads 16 bytes at an offset checked above to lie inside
-        // `l` or `r`; AVX2 is enabled for this function.
+        // SAFETY: every load below reads 16 bytes inside a window row the caller guarantees
+        // readable; AVX2 is enabled for this function.
         unsafe {
             let tw = _mm256_set1_epi16((t << 8) as i16);
             let m0 = _mm256_loadu_si256(mask.as_ptr().cast());
@@ -511,7 +698,7 @@ mod avx2 {
             };
             let mut acc = _mm256_setzero_si256();
             for j in 0..rows {
-                let (a, b) = (lp.add(lo + j * ls), rp.add(ro + j * rs));
+                let (a, b) = (l.add(j * ls), r.add(j * rs));
                 acc = _mm256_add_epi32(acc, half(a, b, m0));
                 if W == 32 {
                     acc = _mm256_add_epi32(acc, half(a.add(16), b.add(16), m1));
@@ -524,6 +711,56 @@ mod avx2 {
             let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b01_00_11_10>(s));
             let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b10_11_00_01>(s));
             _mm_cvtsi128_si32(s) as u32
+        }
+    }
+}
+
+/// The SSD with AVX-512 (BW): a whole 32-byte row widened to 32 lanes in one load, the same
+/// interpolation as [`avx2::ssd`], the mask applied by a zero-masked subtraction: a third of
+/// the AVX2 kernel's instructions. 16-byte rows take the AVX2 kernel.
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::BPP;
+    use std::arch::x86_64::*;
+
+    /// Same contract and result as [`super::avx2::ssd`]; `keep` has a bit per lane of `mask`
+    /// that is set (the same mask as bits).
+    ///
+    /// # Safety
+    /// As [`super::avx2::ssd`], and the CPU must support AVX-512 F/BW/VL.
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) unsafe fn ssd<const W: usize>(
+        l: *const u8,
+        ls: usize,
+        r: *const u8,
+        rs: usize,
+        rows: usize,
+        mask: &[i16; W],
+        keep: u64,
+        t: u16,
+    ) -> u32 {
+        if W != 32 {
+            // SAFETY: the caller's guarantees are those of the AVX2 kernel.
+            return unsafe { super::avx2::ssd::<W>(l, ls, r, rs, rows, mask, t) };
+        }
+        debug_assert!(t < 128);
+        // SAFETY: every load below reads 32 bytes (W) inside a window row the caller
+        // guarantees readable; the features are enabled for this function.
+        unsafe {
+            let tw = _mm512_set1_epi16((t << 8) as i16);
+            let keep = keep as __mmask32;
+            let widen = |p: *const u8| _mm512_cvtepu8_epi16(_mm256_loadu_si256(p.cast()));
+            let mut acc = _mm512_setzero_si512();
+            for j in 0..rows {
+                let (a, b) = (l.add(j * ls), r.add(j * rs));
+                let (va, b0, b1) = (widen(a), widen(b), widen(b.add(BPP)));
+                let vb = _mm512_add_epi16(b0, _mm512_mulhrs_epi16(_mm512_sub_epi16(b1, b0), tw));
+                let d = _mm512_maskz_sub_epi16(keep, va, vb);
+                acc = _mm512_add_epi32(acc, _mm512_madd_epi16(d, d));
+            }
+            _mm512_reduce_add_epi32(acc) as u32
         }
     }
 }
@@ -593,10 +830,40 @@ mod tests {
         assert_eq!(ssd::<16>(&l, 0, 16, &r, 0, 16, 1, &m, 0), 9 * 100);
     }
 
+    /// The SIMD kernel of `isa` on the windows at `lo`, `ro`, bounds-checked like the
+    /// evaluation's pass 2 (the kernels trust their caller).
+    #[allow(clippy::too_many_arguments)]
+    fn simd_ssd<const W: usize>(
+        isa: Isa,
+        (l, lo, ls): (&[u8], usize, usize),
+        (r, ro, rs): (&[u8], usize, usize),
+        rows: usize,
+        (radius, channels): (usize, usize),
+        t: u16,
+    ) -> u32 {
+        assert!(rows > 0 && t < 128);
+        assert!(lo + (rows - 1) * ls + W <= l.len() && ro + (rows - 1) * rs + W + BPP <= r.len());
+        let m16 = mask16::<W>(radius, channels);
+        let (lp, rp) = (l[lo..].as_ptr(), r[ro..].as_ptr());
+        // SAFETY: `isa` is one of `Isa::available()` (the callers' loops), and the windows were
+        // checked to lie inside the buffers just above.
+        unsafe {
+            match isa {
+                Isa::Baseline => panic!("not a SIMD kernel"),
+                Isa::Avx2 => avx2::ssd::<W>(lp, ls, rp, rs, rows, &m16, t),
+                Isa::Avx512 => {
+                    let bits = mask_bits::<W>(radius, channels);
+                    avx512::ssd::<W>(lp, ls, rp, rs, rows, &m16, bits, t)
+                }
+            }
+        }
+    }
+
     #[test]
-    fn avx2_ssd_matches_the_baseline_one() {
-        if Isa::detect() == Isa::Baseline {
-            println!("SKIP avx2_ssd_matches_the_baseline_one: this CPU has no AVX2");
+    fn simd_ssd_matches_the_baseline_one() {
+        let isas = &Isa::available()[1..];
+        if isas.is_empty() {
+            println!("SKIP simd_ssd_matches_the_baseline_one: this CPU has no AVX2");
             return;
         }
         let mut x = 0x2545_f491u32;
@@ -607,25 +874,63 @@ mod tests {
             x as u8
         };
         let (l, r): (Vec<u8>, Vec<u8>) = (0..4096).map(|_| (byte(), byte())).unzip();
-        for t in 0..=128u16 {
-            for (lo, ro) in [(0, 0), (5, 17), (300, 1200), (1000, 3)] {
-                let (m, m16) = (mask::<32>(3, 3), mask16::<32>(3, 3));
-                let want = ssd::<32>(&l, lo, 640, &r, ro, 640, 3, &m, t);
-                // SAFETY: AVX2 detected above.
-                let got = unsafe { avx2::ssd::<32>(&l, lo, 640, &r, ro, 640, 3, &m16, t) };
-                assert_eq!(got, want, "t {t} lo {lo} ro {ro}");
-                let (m, m16) = (mask::<16>(1, 1), mask16::<16>(1, 1));
-                let want = ssd::<16>(&l, lo, 64, &r, ro, 64, 3, &m, t);
-                // SAFETY: AVX2 detected above.
-                let got = unsafe { avx2::ssd::<16>(&l, lo, 64, &r, ro, 64, 3, &m16, t) };
-                assert_eq!(got, want, "t {t} lo {lo} ro {ro}");
+        for &isa in isas {
+            for t in 0..128u16 {
+                for (lo, ro) in [(0, 0), (5, 17), (300, 1200), (1000, 3)] {
+                    let m = mask::<32>(3, 3);
+                    let want = ssd::<32>(&l, lo, 640, &r, ro, 640, 3, &m, t);
+                    let got = simd_ssd::<32>(isa, (&l, lo, 640), (&r, ro, 640), 3, (3, 3), t);
+                    assert_eq!(got, want, "{isa:?} t {t} lo {lo} ro {ro}");
+                    let m = mask::<32>(2, 1);
+                    let want = ssd::<32>(&l, lo, 640, &r, ro, 640, 5, &m, t);
+                    let got = simd_ssd::<32>(isa, (&l, lo, 640), (&r, ro, 640), 5, (2, 1), t);
+                    assert_eq!(got, want, "{isa:?} t {t} lo {lo} ro {ro}");
+                    let m = mask::<16>(1, 1);
+                    let want = ssd::<16>(&l, lo, 64, &r, ro, 64, 3, &m, t);
+                    let got = simd_ssd::<16>(isa, (&l, lo, 64), (&r, ro, 64), 3, (1, 1), t);
+                    assert_eq!(got, want, "{isa:?} t {t} lo {lo} ro {ro}");
+                }
             }
         }
-        // A window that would read past the buffer fails as a mismatch.
-        let m16 = mask16::<32>(3, 3);
-        // SAFETY: AVX2 detected above.
-        let past = unsafe { avx2::ssd::<32>(&l, 4090, 640, &r, 0, 640, 3, &m16, 0) };
-        assert_eq!(past, u32::MAX / 2);
+    }
+
+    #[test]
+    fn full_weight_on_the_next_pixel_is_that_pixel() {
+        // What pass 2 rests on when it maps t = 128 to t = 0 one pixel on.
+        let (l, r): (Vec<u8>, Vec<u8>) = (0..4096u32)
+            .map(|k| ((k * 7 % 251) as u8, (k * 13 % 241) as u8))
+            .unzip();
+        let m = mask::<32>(3, 3);
+        for ro in [0, 17, 1200] {
+            assert_eq!(
+                ssd::<32>(&l, 40, 640, &r, ro, 640, 3, &m, 128),
+                ssd::<32>(&l, 40, 640, &r, ro + BPP, 640, 3, &m, 0)
+            );
+        }
+    }
+
+    #[test]
+    fn windows_past_the_buffer_are_not_compared() {
+        let (ld, rd) = (vec![7u8; 4096], vec![9u8; 4096]);
+        let (mask, mask16) = (mask::<32>(3, 3), mask16::<32>(3, 3));
+        let windows = Windows {
+            left: (&ld[..], 3 * 640, 640 * 3 + 15),
+            right: (&rd[..], 3 * 640, 640 * 3 + 15),
+            n_rows: 3,
+            mask: &mask,
+            mask16: &mask16,
+            mask_bits: mask_bits::<32>(3, 3),
+        };
+        // In range; the left window past the end; the right one; a fly outside (pass 1's mark).
+        let lo = [0, 4096 - 2 * 1920 - 31, 0, u32::MAX];
+        let ro = [0, 0, 4096 - 2 * 1920 - 35, 0];
+        for isa in Isa::available() {
+            let (mut grads, mut ssds) = ([0; 4], [0; 4]);
+            windows.compare(*isa, &lo, &ro, &[0; 4], &mut grads, &mut ssds);
+            // 7 pixels x 3 channels x 3 rows of (9 - 7)^2.
+            assert_eq!(ssds, [63 * 4, -1, -1, -1], "{isa:?}");
+            assert_eq!(grads[0], 63, "{isa:?}");
+        }
     }
 
     #[test]

@@ -168,9 +168,9 @@ impl Population {
     fn project_on(&mut self, isa: Isa, left: &Projector, right: &Projector, r: Range<usize>) {
         match isa {
             Isa::Baseline => self.project(left, right, r),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.project_avx2(left, right, r) },
+            Isa::Avx2 | Isa::Avx512 => unsafe { self.project_avx2(left, right, r) },
         }
     }
 
@@ -492,9 +492,9 @@ impl Engine {
         );
         match self.isa {
             Isa::Baseline => warnings(&mut self.pop, min_x, min_z),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { warnings_avx2(&mut self.pop, min_x, min_z) },
+            Isa::Avx2 | Isa::Avx512 => unsafe { warnings_avx2(&mut self.pop, min_x, min_z) },
         }
     }
 
