@@ -542,7 +542,7 @@ impl Engine {
         let immigrants_from = n - self.params.immigrants();
         let t = phase::start(Phase::Select);
         self.selector
-            .select(&self.pop.fitness, keep, &mut self.chosen);
+            .select_on(self.isa, &self.pop.fitness, keep, &mut self.chosen);
         t.stop();
         let t = phase::start(Phase::Compact);
         // Compact: each non-survivor slot below `keep` takes a survivor from above it, the k-th

@@ -6,13 +6,18 @@
 //! selection. Ties at the boundary go to the lower index, so the result depends only on the
 //! fitness values, never on an earlier permutation.
 
+use crate::isa::Isa;
+
 /// Bins of the radix pass: the top 15 bits below the sign (exponent and 7 mantissa bits, so a
 /// bin spans under 1 % of fitness). The finer the bins, the fewer flies share the boundary bin,
-/// whose flies are found by a branch that mispredicts and then selected exactly: with 2048 bins
-/// it held hundreds of flies. Only the band of bins between the smallest and the largest
+/// whose flies are searched for chunk by chunk and then selected exactly: with 2048 bins it held
+/// hundreds of flies. Only the band of bins between the smallest and the largest
 /// nonzero key (and bin 0) is cleared and counted each generation: a few thousand of them.
 const BINS: usize = 1 << (31 - SHIFT);
 const SHIFT: u32 = 16;
+
+/// Keys tested at once for the boundary bin.
+const CHUNK: usize = 32;
 
 #[derive(Debug, Clone)]
 pub(crate) struct Selector {
@@ -37,7 +42,39 @@ impl Selector {
         }
     }
 
+    /// [`Selector::select`] compiled for instruction set `isa` (the same flies on each).
+    pub(crate) fn select_on(
+        &mut self,
+        isa: Isa,
+        fitness: &[f32],
+        keep: usize,
+        chosen: &mut [bool],
+    ) {
+        match isa {
+            Isa::Baseline => self.select(fitness, keep, chosen),
+            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { self.select_avx2(fitness, keep, chosen) },
+            // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL were detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { self.select_avx512(fitness, keep, chosen) },
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn select_avx2(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+        self.select(fitness, keep, chosen);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    unsafe fn select_avx512(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+        self.select(fitness, keep, chosen);
+    }
+
     /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.
+    #[inline(always)]
     pub(crate) fn select(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
         let n = fitness.len().min(chosen.len()).min(self.keys.len());
         let keep = keep.min(n);
@@ -58,7 +95,8 @@ impl Selector {
         self.hist[0] = 0;
         self.hist[low_bin..=top_bin].fill(0);
         for &k in keys.iter() {
-            self.hist[(k >> SHIFT) as usize] += 1;
+            // Keys are below 2^31 (non-negative f32): the mask only drops the bounds check.
+            self.hist[(k >> SHIFT) as usize & (BINS - 1)] += 1;
         }
         // The bin holding the keep-th best, and how many flies rank strictly above it.
         let (mut bin, mut above) = (top_bin, 0usize);
@@ -77,11 +115,22 @@ impl Selector {
         for (c, &k) in chosen[..n].iter_mut().zip(keys.iter()) {
             *c = (k >> SHIFT) > bin32;
         }
-        for (i, &k) in keys.iter().enumerate() {
-            if (k >> SHIFT) == bin32 {
-                // Larger key = better: fitness first, then the lower index.
-                self.boundary
-                    .push(((k as u64) << 32) | (!(i as u32)) as u64);
+        // The boundary bin holds a few flies: a vectorised test finds the chunks that hold one,
+        // and only those are searched (a branch per fly cost more than the rest together).
+        for (c, chunk) in keys.chunks(CHUNK).enumerate() {
+            if !chunk
+                .iter()
+                .fold(false, |any, &k| any | ((k >> SHIFT) == bin32))
+            {
+                continue;
+            }
+            for (j, &k) in chunk.iter().enumerate() {
+                if (k >> SHIFT) == bin32 {
+                    let i = c * CHUNK + j;
+                    // Larger key = better: fitness first, then the lower index.
+                    self.boundary
+                        .push(((k as u64) << 32) | (!(i as u32)) as u64);
+                }
             }
         }
         let need = keep - above;
@@ -117,10 +166,18 @@ mod tests {
     }
 
     fn check(fitness: &[f32], keep: usize) {
-        let mut chosen = vec![false; fitness.len()];
-        Selector::new(fitness.len()).select(fitness, keep, &mut chosen);
-        assert_eq!(chosen, reference(fitness, keep), "{fitness:?} keep {keep}");
-        assert_eq!(chosen.iter().filter(|&&c| c).count(), keep);
+        // Every instruction set this CPU has (the SIMD ones print no SKIP: the baseline alone is
+        // the whole of the selection's code, the others are the same code compiled wider).
+        for &isa in Isa::available() {
+            let mut chosen = vec![false; fitness.len()];
+            Selector::new(fitness.len()).select_on(isa, fitness, keep, &mut chosen);
+            assert_eq!(
+                chosen,
+                reference(fitness, keep),
+                "{isa:?} {fitness:?} keep {keep}"
+            );
+            assert_eq!(chosen.iter().filter(|&&c| c).count(), keep);
+        }
     }
 
     #[test]
