@@ -13,7 +13,7 @@
 pub(crate) enum Isa {
     /// SSE2 (the x86-64 baseline) or portable code.
     Baseline,
-    /// AVX2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
+    /// AVX2 with BMI1/BMI2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
     #[cfg(target_arch = "x86_64")]
     Avx2,
     /// AVX-512 F/BW/VL on top of AVX2 (x86-64-v4: Intel server CPUs since 2017, AMD since Zen 4).
@@ -33,10 +33,12 @@ impl Isa {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::is_x86_feature_detected as has;
-            if has!("avx2") && has!("avx512f") && has!("avx512bw") && has!("avx512vl") {
+            // x86-64-v3's AVX2 with its bit-manipulation companions (every AVX2 CPU has them).
+            let v3 = has!("avx2") && has!("bmi1") && has!("bmi2");
+            if v3 && has!("avx512f") && has!("avx512bw") && has!("avx512vl") {
                 return &[Isa::Baseline, Isa::Avx2, Isa::Avx512];
             }
-            if has!("avx2") {
+            if v3 {
                 return &[Isa::Baseline, Isa::Avx2];
             }
         }

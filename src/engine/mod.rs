@@ -439,7 +439,7 @@ impl Engine {
         self.unevaluated_from = n;
         t.stop();
         let t = phase::start(Phase::Share);
-        self.sharing.apply(&mut self.pop);
+        self.sharing.apply_on(self.isa, &mut self.pop);
         t.stop();
         let t = phase::start(Phase::Warnings);
         let (global_warning, danger, mean_fitness, visible) = self.warnings();
@@ -531,7 +531,7 @@ impl Engine {
             self.pop.raw_fitness[i as usize] = self.probe.raw_fitness[k];
         }
         self.refreshed = m;
-        self.sharing.apply(&mut self.pop);
+        self.sharing.apply_on(self.isa, &mut self.pop);
     }
 
     /// Selection and genetic operators: survivors move to `0..keep` (in place), offspring fill
@@ -589,6 +589,7 @@ impl Engine {
         let (pz, cz) = pop.z.split_at_mut(keep);
         let children = immigrants_from - keep;
         breed(
+            self.isa,
             &Breeding {
                 guided: unit_threshold(self.params.guided_breeding),
                 local: unit_threshold(self.params.local_mating),
@@ -610,7 +611,8 @@ impl Engine {
         t.stop();
         let t = phase::start(Phase::Mutate);
         let r = keep..immigrants_from;
-        mutate(
+        mutate_on(
+            self.isa,
             [
                 &mut self.pop.x[r.clone()],
                 &mut self.pop.y[r.clone()],
@@ -901,12 +903,56 @@ struct Breeding<'a> {
     cell: &'a [u32],
 }
 
+/// [`breed_with`] compiled for instruction set `isa` (the same offspring on each: integer and
+/// f32 arithmetic only; AVX2 brings BMI2's shifts and rotations for the generator, and wider
+/// registers).
+fn breed(
+    isa: Isa,
+    b: &Breeding,
+    parents: [&[f32]; 3],
+    children: [&mut [f32]; 3],
+    masks: &mut [u64],
+    generator: &mut Xoshiro256PlusPlus,
+) {
+    match isa {
+        Isa::Baseline => breed_baseline(b, parents, children, masks, generator),
+        // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2, BMI1 and BMI2
+        // were detected.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 | Isa::Avx512 => unsafe { breed_avx2(b, parents, children, masks, generator) },
+    }
+}
+
+#[inline(never)]
+fn breed_baseline(
+    b: &Breeding,
+    parents: [&[f32]; 3],
+    children: [&mut [f32]; 3],
+    masks: &mut [u64],
+    generator: &mut Xoshiro256PlusPlus,
+) {
+    breed_with(b, parents, children, masks, generator);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+#[inline(never)]
+unsafe fn breed_avx2(
+    b: &Breeding,
+    parents: [&[f32]; 3],
+    children: [&mut [f32]; 3],
+    masks: &mut [u64],
+    generator: &mut Xoshiro256PlusPlus,
+) {
+    breed_with(b, parents, children, masks, generator);
+}
+
 /// Writes one crossover offspring per element of `children` from the `parents` (the survivors)
 /// and its mutation coins to `masks`. A function of its own over disjoint slices, so the loop
 /// keeps the slices' pointers in registers (through `&mut self`, every store could have moved
 /// them).
-#[inline(never)]
-fn breed(
+#[inline(always)]
+fn breed_with(
     b: &Breeding,
     [px, py, pz]: [&[f32]; 3],
     [cx, cy, cz]: [&mut [f32]; 3],
@@ -973,6 +1019,39 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
     ]
 }
 
+/// [`mutate`] compiled for instruction set `isa` (the same flies on each, as for [`breed`]).
+fn mutate_on(
+    isa: Isa,
+    coords: [&mut [f32]; 3],
+    masks: &[u64],
+    hits: &mut [u32],
+    generator: &mut Xoshiro256PlusPlus,
+    threshold: u32,
+    sigma: f32,
+) {
+    match isa {
+        Isa::Baseline => mutate(coords, masks, hits, generator, threshold, sigma),
+        // SAFETY: as in `breed`.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 | Isa::Avx512 => unsafe {
+            mutate_avx2(coords, masks, hits, generator, threshold, sigma)
+        },
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+unsafe fn mutate_avx2(
+    coords: [&mut [f32]; 3],
+    masks: &[u64],
+    hits: &mut [u32],
+    generator: &mut Xoshiro256PlusPlus,
+    threshold: u32,
+    sigma: f32,
+) {
+    mutate(coords, masks, hits, generator, threshold, sigma);
+}
+
 /// Gaussian mutation of flies `[x, y, z]`: coordinate k of fly j moves with probability
 /// `threshold / 65536` (bits 16k..16k+16 of `masks[j]` below it) by rand_distr's
 /// `StandardNormal` times `sigma * max(z, 1)`, z before the mutation. A coin toss per coordinate
@@ -980,6 +1059,7 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
 /// coins gathers, without branches, the indices of the flies each coordinate moves (into
 /// `hits`, three lists of up to n: `hits` holds 3 per fly), then only those draw a normal,
 /// coordinate by coordinate. Flies beyond `masks` or a third of `hits` are left as they are.
+#[inline(always)]
 pub fn mutate<R: Rng + Clone>(
     [x, y, z]: [&mut [f32]; 3],
     masks: &[u64],

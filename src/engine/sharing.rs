@@ -16,6 +16,7 @@
 
 use super::Population;
 use super::fitness::trunc;
+use crate::isa::Isa;
 
 #[derive(Debug, Clone)]
 pub(crate) struct Grid {
@@ -58,8 +59,34 @@ impl Grid {
         (cy * self.cols + cx).min(self.counts.len() as u32 - 1)
     }
 
+    /// [`Grid::apply`] compiled for instruction set `isa` (the same fitness on each).
+    pub(crate) fn apply_on(&mut self, isa: Isa, pop: &mut Population) {
+        match isa {
+            Isa::Baseline => self.apply(pop),
+            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { self.apply_avx2(pop) },
+            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { self.apply_avx512(pop) },
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn apply_avx2(&mut self, pop: &mut Population) {
+        self.apply(pop);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+    unsafe fn apply_avx512(&mut self, pop: &mut Population) {
+        self.apply(pop);
+    }
+
     /// Sets `fitness` from `raw_fitness` and the cells the evaluation assigned (`u32::MAX` for a
     /// fly outside an image: fitness 0).
+    #[inline(always)]
     pub(crate) fn apply(&mut self, pop: &mut Population) {
         self.counts.fill(0);
         for &cell in &pop.cell {
