@@ -558,7 +558,7 @@ impl Engine {
         t.stop();
         let t = phase::start(Phase::Mates);
         if self.params.local_mating > 0.0 {
-            self.mates.index(&self.pop.cell[..keep]);
+            self.mates.index_on(self.isa, &self.pop.cell[..keep]);
         }
         t.stop();
         let t = phase::start(Phase::Breed);

@@ -127,7 +127,24 @@ impl Mates {
         }
     }
 
+    /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each).
+    pub(crate) fn index_on(&mut self, isa: Isa, cells: &[u32]) {
+        match isa {
+            Isa::Baseline => self.index(cells),
+            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 | Isa::Avx512 => unsafe { self.index_avx2(cells) },
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,bmi1,bmi2")]
+    unsafe fn index_avx2(&mut self, cells: &[u32]) {
+        self.index(cells);
+    }
+
     /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
+    #[inline(always)]
     pub(crate) fn index(&mut self, cells: &[u32]) {
         // Counts at `start[c + 1]`; a running sum turns them into ends, `start[c + 1]` = the end
         // of cell c (the sum in a register: no store-to-load chain through the array).
