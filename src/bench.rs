@@ -8,6 +8,7 @@
 
 use crate::engine::{Engine, EngineParams, phase};
 use crate::frame::{PixelFormat, PreparedImage, StereoFrame};
+use crate::isa::Isa;
 use crate::mock::MockStereo;
 use crate::replay::Timing;
 use serde::Serialize;
@@ -21,6 +22,8 @@ pub struct GenerationBench {
     pub height: u32,
     pub generations: u64,
     pub generations_per_frame: u64,
+    /// Instruction set of the hot loops; the best this CPU has when `None`.
+    pub isa: Option<Isa>,
 }
 
 /// Timing of generations, microseconds.
@@ -31,6 +34,8 @@ pub struct GenerationReport {
     pub height: u32,
     pub generations: u64,
     pub generations_per_frame: u64,
+    /// Instruction set the hot loops ran on.
+    pub isa: &'static str,
     /// Every timed generation.
     pub all: Timing,
     /// Generations that re-evaluated the whole population on a new frame.
@@ -48,8 +53,13 @@ impl std::fmt::Display for GenerationReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{} flies, {}x{}, {} generations, a new frame every {}",
-            self.flies, self.width, self.height, self.generations, self.generations_per_frame
+            "{} flies, {}x{}, {} generations, a new frame every {}, {}",
+            self.flies,
+            self.width,
+            self.height,
+            self.generations,
+            self.generations_per_frame,
+            self.isa
         )?;
         for (name, t) in [
             ("all", &self.all),
@@ -96,6 +106,9 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
         ..EngineParams::default()
     };
     let mut engine = Engine::new(mock.rig(), params)?;
+    if let Some(isa) = cfg.isa {
+        engine.set_isa(isa)?;
+    }
     let k = cfg.generations_per_frame.max(1);
     let warmup = 50;
     let (mut all, mut new, mut same) = (Vec::new(), Vec::new(), Vec::new());
@@ -138,6 +151,7 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
         width: cfg.width,
         height: cfg.height,
         generations: cfg.generations,
+        isa: engine.isa().name(),
         generations_per_frame: k,
         all: Timing::of(&mut all),
         new_frame: Timing::of(&mut new),

@@ -10,7 +10,7 @@
 
 /// An instruction set a hot loop can run on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Isa {
+pub enum Isa {
     /// SSE2 (the x86-64 baseline) or portable code.
     Baseline,
     /// AVX2 with BMI1/BMI2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
@@ -24,12 +24,12 @@ pub(crate) enum Isa {
 
 impl Isa {
     /// The best instruction set this CPU has (std caches the CPUID query).
-    pub(crate) fn detect() -> Self {
+    pub fn detect() -> Self {
         Self::available().last().copied().unwrap_or(Isa::Baseline)
     }
 
     /// Every instruction set this CPU has, baseline first, best last (what the tests compare).
-    pub(crate) fn available() -> &'static [Isa] {
+    pub fn available() -> &'static [Isa] {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::is_x86_feature_detected as has;
@@ -43,5 +43,21 @@ impl Isa {
             }
         }
         &[Isa::Baseline]
+    }
+
+    /// The name `flyd bench --isa` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Baseline => "baseline",
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => "avx2",
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => "avx512",
+        }
+    }
+
+    /// The instruction set named `name`, if this CPU has it.
+    pub fn available_by_name(name: &str) -> Option<Isa> {
+        Self::available().iter().copied().find(|i| i.name() == name)
     }
 }

@@ -9,7 +9,7 @@ pub mod decision;
 pub mod engine;
 pub mod frame;
 pub mod geometry;
-mod isa;
+pub mod isa;
 pub mod logging;
 pub mod mock;
 pub mod replay;

@@ -58,6 +58,10 @@ struct BenchArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// Instruction set of the hot loops: baseline, avx2 or avx512 (default: the best this CPU
+    /// has; every one gives the same population).
+    #[arg(long, value_parser = parse_isa)]
+    isa: Option<flyd::isa::Isa>,
     /// Instead: reaction time of the whole threaded daemon on hw-mock (config/demo.toml), from
     /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
     #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
@@ -261,6 +265,16 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
     )
 }
 
+fn parse_isa(name: &str) -> std::result::Result<flyd::isa::Isa, String> {
+    flyd::isa::Isa::available_by_name(name).ok_or_else(|| {
+        let names: Vec<&str> = flyd::isa::Isa::available()
+            .iter()
+            .map(|i| i.name())
+            .collect();
+        format!("this CPU has {}", names.join(", "))
+    })
+}
+
 fn bench_command(args: BenchArgs) -> Result<()> {
     if let Some(runs) = args.end_to_end {
         return bench_end_to_end_command(runs, args.json);
@@ -271,6 +285,7 @@ fn bench_command(args: BenchArgs) -> Result<()> {
         height: args.height,
         generations: args.generations,
         generations_per_frame: args.generations_per_frame,
+        isa: args.isa,
     })?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -228,3 +228,26 @@ fn errors_name_their_cause_once() {
         assert_eq!(stderr.matches(cause).count(), 1, "{args:?}: {stderr}");
     }
 }
+
+#[test]
+fn bench_runs_on_the_instruction_set_asked_for_and_refuses_a_missing_one() {
+    let (ok, stdout, stderr) = flyd(&[
+        "bench",
+        "--isa",
+        "baseline",
+        "--flies",
+        "500",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--generations",
+        "6",
+        "--json",
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("\"isa\": \"baseline\""), "{stdout}");
+    let (ok, _, stderr) = flyd(&["bench", "--isa", "sse9"]);
+    assert!(!ok);
+    assert!(stderr.contains("this CPU has baseline"), "{stderr}");
+}

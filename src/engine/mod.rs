@@ -77,6 +77,8 @@ pub enum EngineError {
     NoCommonView { min: f64, max: f64 },
     #[error("the left camera's model cannot be inverted at the image border")]
     NotInvertible,
+    #[error("this CPU has no {0} instruction set")]
+    UnsupportedIsa(&'static str),
     #[error("frame {which} is {got_w}x{got_h} but the calibration expects {want_w}x{want_h}")]
     FrameSize {
         which: &'static str,
@@ -402,6 +404,21 @@ impl Engine {
 
     pub fn stats(&self) -> GenerationStats {
         self.stats
+    }
+
+    /// The instruction set the hot loops run on (the best this CPU has, unless set).
+    pub fn isa(&self) -> Isa {
+        self.isa
+    }
+
+    /// Runs the hot loops on `isa` instead (for benchmarks: every instruction set gives the
+    /// same population). Fails if this CPU lacks it.
+    pub fn set_isa(&mut self, isa: Isa) -> Result<(), EngineError> {
+        if !Isa::available().contains(&isa) {
+            return Err(EngineError::UnsupportedIsa(isa.name()));
+        }
+        self.isa = isa;
+        Ok(())
     }
 
     /// Runs one generation against `frame` (see the module docs for the steps).
