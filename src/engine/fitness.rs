@@ -832,6 +832,7 @@ mod tests {
 
     /// The SIMD kernel of `isa` on the windows at `lo`, `ro`, bounds-checked like the
     /// evaluation's pass 2 (the kernels trust their caller).
+    #[cfg(target_arch = "x86_64")]
     #[allow(clippy::too_many_arguments)]
     fn simd_ssd<const W: usize>(
         isa: Isa,
@@ -859,6 +860,7 @@ mod tests {
         }
     }
 
+    #[cfg(target_arch = "x86_64")]
     #[test]
     fn simd_ssd_matches_the_baseline_one() {
         let isas = &Isa::available()[1..];
