@@ -566,8 +566,14 @@ impl Engine {
         // hole the k-th such survivor. There are exactly as many of one as of the other.
         // Survivors already below `keep` (the usual case for long-lived flies) do not move. The
         // two lists are built without branches (a survivor flag is a coin toss to a predictor).
-        let holes = gather(self.chosen[..keep].iter().map(|&c| !c), 0, &mut self.holes);
-        let movers = gather(self.chosen[keep..n].iter().copied(), keep, &mut self.movers);
+        let holes = gather_flags(self.isa, &self.chosen[..keep], false, 0, &mut self.holes);
+        let movers = gather_flags(
+            self.isa,
+            &self.chosen[keep..n],
+            true,
+            keep,
+            &mut self.movers,
+        );
         for k in 0..holes.min(movers) {
             self.pop
                 .move_fly(self.holes[k] as usize, self.movers[k] as usize);
@@ -1242,6 +1248,49 @@ fn gather(flags: impl Iterator<Item = bool>, base: usize, out: &mut [u32]) -> us
         count += usize::from(f);
     }
     count.min(out.len())
+}
+
+/// [`gather`] of the flags equal to `set`, on instruction set `isa` (the same list on each).
+fn gather_flags(isa: Isa, flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
+    match isa {
+        // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL were detected.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { gather_flags_avx512(flags, set, base, out) },
+        _ => gather(flags.iter().map(|&f| f == set), base, out),
+    }
+}
+
+/// [`gather_flags`] with AVX-512: 16 flags at a time, their indices compressed into `out`
+/// with one masked store.
+///
+/// # Safety
+/// The CPU must support AVX-512 F/BW/VL.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+unsafe fn gather_flags_avx512(flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
+    use std::arch::x86_64::*;
+    let n = flags.len().min(out.len());
+    let full = n / 16 * 16;
+    let mut count = 0usize;
+    // SAFETY: each load reads 16 bools at `j < full <= flags.len() - 16`; the store writes the
+    // `popcount` lanes of a mask below 2^popcount at `count`, and count + popcount <= j + 16
+    // <= n <= out.len().
+    unsafe {
+        let iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let want = _mm_set1_epi8(i8::from(set));
+        for j in (0..full).step_by(16) {
+            let f = _mm_loadu_si128(flags.as_ptr().add(j).cast());
+            let m = _mm_cmpeq_epi8_mask(f, want);
+            let idx = _mm512_add_epi32(iota, _mm512_set1_epi32((base + j) as i32));
+            let packed = _mm512_maskz_compress_epi32(m, idx);
+            let c = m.count_ones();
+            let store = ((1u32 << c) - 1) as u16;
+            _mm512_mask_storeu_epi32(out.as_mut_ptr().add(count).cast(), store, packed);
+            count += c as usize;
+        }
+    }
+    let tail = flags[full..n].iter().map(|&f| f == set);
+    count + gather(tail, base + full, &mut out[count..])
 }
 
 /// Probability `p` in [0, 1] as a threshold on 32 random bits: `bits < threshold` with

@@ -936,3 +936,20 @@ fn the_avx512_coin_lists_are_the_scalar_ones() {
         }
     }
 }
+
+#[test]
+fn gathered_flags_are_the_same_on_every_instruction_set() {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    for n in [0, 1, 15, 16, 17, 33, 2000] {
+        let flags: Vec<bool> = (0..n).map(|_| rng.next_u32() % 3 == 0).collect();
+        for set in [false, true] {
+            let mut want = vec![u32::MAX; n];
+            let w = gather(flags.iter().map(|&f| f == set), 7, &mut want);
+            for &isa in Isa::available() {
+                let mut got = vec![u32::MAX; n];
+                let g = gather_flags(isa, &flags, set, 7, &mut got);
+                assert_eq!((w, &want[..w]), (g, &got[..g]), "{isa:?} n {n} set {set}");
+            }
+        }
+    }
+}
