@@ -607,10 +607,6 @@ impl Engine {
         let threshold = (self.params.mutation_rate * 65536.0).round() as u32;
         let sigma = self.params.mutation_sigma as f32;
         let pop = &mut self.pop;
-        let (px, cx) = pop.x.split_at_mut(keep);
-        let (py, cy) = pop.y.split_at_mut(keep);
-        let (pz, cz) = pop.z.split_at_mut(keep);
-        let children = immigrants_from - keep;
         breed(
             self.isa,
             &Breeding {
@@ -619,15 +615,11 @@ impl Engine {
                 tournament,
                 breeders: &self.breeders[..breeders],
                 breeder_fitness: &self.breeder_fitness[..breeders],
-                mates: &self.mates,
+                mates: self.mates.picker(),
                 cell: &pop.cell[..keep],
             },
-            [px, py, pz],
-            [
-                &mut cx[..children],
-                &mut cy[..children],
-                &mut cz[..children],
-            ],
+            [&mut pop.x, &mut pop.y, &mut pop.z],
+            keep..immigrants_from,
             &mut self.masks,
             &mut self.rng,
         );
@@ -921,7 +913,7 @@ struct Breeding<'a> {
     /// Survivors where the image changed, and their fitness (before sharing).
     breeders: &'a [u32],
     breeder_fitness: &'a [f32],
-    mates: &'a sharing::Mates,
+    mates: sharing::Picker<'a>,
     /// Sharing cell of each parent.
     cell: &'a [u32],
 }
@@ -932,29 +924,29 @@ struct Breeding<'a> {
 fn breed(
     isa: Isa,
     b: &Breeding,
-    parents: [&[f32]; 3],
-    children: [&mut [f32]; 3],
+    coords: [&mut [f32]; 3],
+    children: Range<usize>,
     masks: &mut [u64],
     generator: &mut Xoshiro256PlusPlus,
 ) {
     match isa {
-        Isa::Baseline => breed_baseline(b, parents, children, masks, generator),
+        Isa::Baseline => breed_baseline(b, coords, children, masks, generator),
         // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2, BMI1 and BMI2
         // were detected.
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 | Isa::Avx512 => unsafe { breed_avx2(b, parents, children, masks, generator) },
+        Isa::Avx2 | Isa::Avx512 => unsafe { breed_avx2(b, coords, children, masks, generator) },
     }
 }
 
 #[inline(never)]
 fn breed_baseline(
     b: &Breeding,
-    parents: [&[f32]; 3],
-    children: [&mut [f32]; 3],
+    coords: [&mut [f32]; 3],
+    children: Range<usize>,
     masks: &mut [u64],
     generator: &mut Xoshiro256PlusPlus,
 ) {
-    breed_with(b, parents, children, masks, generator);
+    breed_with(b, coords, children, masks, generator);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -962,39 +954,59 @@ fn breed_baseline(
 #[inline(never)]
 unsafe fn breed_avx2(
     b: &Breeding,
-    parents: [&[f32]; 3],
-    children: [&mut [f32]; 3],
+    coords: [&mut [f32]; 3],
+    children: Range<usize>,
     masks: &mut [u64],
     generator: &mut Xoshiro256PlusPlus,
 ) {
-    breed_with(b, parents, children, masks, generator);
+    breed_with(b, coords, children, masks, generator);
 }
 
-/// Writes one crossover offspring per element of `children` from the `parents` (the survivors)
-/// and its mutation coins to `masks`. A function of its own over disjoint slices, so the loop
-/// keeps the slices' pointers in registers (through `&mut self`, every store could have moved
-/// them).
+/// Writes one crossover offspring into each fly of `children` (of the coordinates `[x, y, z]`)
+/// from the survivors `0..children.start`, and its mutation coins to `masks` (from 0). A
+/// function of its own over disjoint slices, so the loop keeps the slices' pointers in
+/// registers (through `&mut self`, every store could have moved them); parents and children
+/// are read and written through one slice a coordinate, which keeps three pointers fewer.
 #[inline(always)]
 fn breed_with(
     b: &Breeding,
-    [px, py, pz]: [&[f32]; 3],
-    [cx, cy, cz]: [&mut [f32]; 3],
+    coords: [&mut [f32]; 3],
+    children: Range<usize>,
     masks: &mut [u64],
     generator: &mut Xoshiro256PlusPlus,
 ) {
-    let keep = px.len().min(py.len()).min(pz.len()).min(b.cell.len());
+    // A static scene has no breeders: its loop carries none of the tournament's state.
+    if b.breeders.is_empty() || b.breeder_fitness.is_empty() {
+        breed_loop::<false>(b, coords, children, masks, generator);
+    } else {
+        breed_loop::<true>(b, coords, children, masks, generator);
+    }
+}
+
+#[inline(always)]
+fn breed_loop<const GUIDED: bool>(
+    b: &Breeding,
+    [x, y, z]: [&mut [f32]; 3],
+    children: Range<usize>,
+    masks: &mut [u64],
+    generator: &mut Xoshiro256PlusPlus,
+) {
+    let n = x.len().min(y.len()).min(z.len());
+    let keep = children.start.min(b.cell.len()).min(n);
+    let end = children.end.min(n);
     let breeders = b.breeders.len().min(b.breeder_fitness.len());
     let fit = &b.breeder_fitness[..breeders];
+    let (cell, mates) = (&b.cell[..keep], b.mates);
     if keep == 0 {
         return;
     }
     // A local copy: the generator's state stays in registers (through the reference, each
     // store to a child could have changed it, so it went through memory on every draw).
     let mut rng = generator.clone();
-    for i in 0..cx.len().min(cy.len()).min(cz.len()) {
+    for i in keep..end {
         let r = rng.next_u64();
         let mut a = lemire(r as u32, keep);
-        if breeders > 0 {
+        if GUIDED {
             let g = rng.next_u64();
             if (g as u32) < b.guided {
                 // Tournament: the fittest of `tournament` draws, two per random word.
@@ -1015,17 +1027,17 @@ fn breed_with(
         }
         let r2 = rng.next_u64();
         let m = if (r2 as u32) < b.local {
-            b.mates
-                .pick(b.cell[a], (r2 >> 32) as u32)
+            mates
+                .pick(cell[a], (r2 >> 32) as u32)
                 .unwrap_or(a)
                 .min(keep - 1)
         } else {
             lemire((r >> 32) as u32, keep)
         };
         let l = unit_f32(rng.next_u32());
-        let c = crossover([px[a], py[a], pz[a]], [px[m], py[m], pz[m]], l);
-        (cx[i], cy[i], cz[i]) = (c[0], c[1], c[2]);
-        if let Some(w) = masks.get_mut(i) {
+        let c = crossover([x[a], y[a], z[a]], [x[m], y[m], z[m]], l);
+        (x[i], y[i], z[i]) = (c[0], c[1], c[2]);
+        if let Some(w) = masks.get_mut(i - keep) {
             *w = rng.next_u64();
         }
     }

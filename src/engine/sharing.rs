@@ -184,7 +184,31 @@ impl Mates {
     }
 
     /// A member of `cell` chosen with 32 random bits, or `None` if the cell is empty.
-    #[inline]
+    #[cfg(test)]
+    pub(crate) fn pick(&self, cell: u32, bits: u32) -> Option<usize> {
+        self.picker().pick(cell, bits)
+    }
+
+    /// The index as two slices, for a loop that picks many mates (the slices stay in
+    /// registers, where the fields of `&self` are reloaded after every store).
+    pub(crate) fn picker(&self) -> Picker<'_> {
+        Picker {
+            start: &self.start,
+            members: &self.members,
+        }
+    }
+}
+
+/// [`Mates`] borrowed for picking.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Picker<'a> {
+    start: &'a [u32],
+    members: &'a [u32],
+}
+
+impl Picker<'_> {
+    /// See [`Mates::pick`].
+    #[inline(always)]
     pub(crate) fn pick(&self, cell: u32, bits: u32) -> Option<usize> {
         let c = cell as usize;
         if c + 2 >= self.start.len() {
