@@ -1101,7 +1101,9 @@ unsafe fn mutate_avx2(
     threshold: u32,
     sigma: f32,
 ) {
-    mutate(coords, masks, hits, generator, threshold, sigma);
+    // SAFETY: the features `coin_lists_avx2` needs are enabled for this function.
+    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| unsafe { coin_lists_avx2(m, t, l) };
+    mutate_with(coords, masks, hits, generator, threshold, sigma, lists);
 }
 
 /// Gaussian mutation of flies `[x, y, z]`: coordinate k of fly j moves with probability
@@ -1268,8 +1270,127 @@ fn gather_flags(isa: Isa, flags: &[bool], set: bool, base: usize, out: &mut [u32
         // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL were detected.
         #[cfg(target_arch = "x86_64")]
         Isa::Avx512 => unsafe { gather_flags_avx512(flags, set, base, out) },
-        _ => gather(flags.iter().map(|&f| f == set), base, out),
+        // SAFETY: `Isa::Avx2` is only ever set after AVX2 was detected.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { gather_flags_avx2(flags, set, base, out) },
+        Isa::Baseline => gather(flags.iter().map(|&f| f == set), base, out),
     }
+}
+
+/// For each 8-bit mask, the lanes of its set bits packed to the front (then zeros): the
+/// permutation that compresses 8 lanes with AVX2, which has no compress instruction.
+#[cfg(target_arch = "x86_64")]
+static LEFT_PACK: [[u32; 8]; 256] = {
+    let mut t = [[0u32; 8]; 256];
+    let mut m = 0;
+    while m < 256 {
+        let (mut lane, mut k) = (0, 0);
+        while lane < 8 {
+            if m & (1 << lane) != 0 {
+                t[m][k] = lane as u32;
+                k += 1;
+            }
+            lane += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
+/// Writes the indices `base + lane` of the set bits of `mask` (8 lanes) at `out`, all 8 lanes
+/// (those past the count are scratch), and returns the count.
+///
+/// # Safety
+/// The CPU must support AVX2; 8 u32 must be writable at `out`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+#[inline]
+unsafe fn left_pack8(mask: u32, base: usize, out: *mut u32) -> usize {
+    use std::arch::x86_64::*;
+    let m = (mask & 0xff) as usize;
+    // SAFETY: the table row is 8 u32; the caller guarantees the store.
+    unsafe {
+        let perm = _mm256_loadu_si256(LEFT_PACK[m].as_ptr().cast());
+        let idx = _mm256_add_epi32(
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+            _mm256_set1_epi32(base as i32),
+        );
+        _mm256_storeu_si256(out.cast(), _mm256_permutevar8x32_epi32(idx, perm));
+    }
+    m.count_ones() as usize
+}
+
+/// [`gather_flags`] with AVX2: 8 flags at a time, packed with a permutation from
+/// [`LEFT_PACK`] and stored whole (the lanes past the count are overwritten next).
+///
+/// # Safety
+/// The CPU must support AVX2 (and BMI1/BMI2).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+unsafe fn gather_flags_avx2(flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
+    use std::arch::x86_64::*;
+    let n = flags.len().min(out.len());
+    let full = n / 8 * 8;
+    let mut count = 0usize;
+    // SAFETY: each load reads 8 bools at `j < full <= flags.len() - 8`; the store writes 8
+    // lanes at `count <= j`, so up to j + 8 <= n <= out.len().
+    unsafe {
+        let want = _mm_set1_epi8(i8::from(set));
+        for j in (0..full).step_by(8) {
+            let f = _mm_loadl_epi64(flags.as_ptr().add(j).cast());
+            let m = _mm_movemask_epi8(_mm_cmpeq_epi8(f, want)) as u32;
+            count += left_pack8(m, base + j, out.as_mut_ptr().add(count));
+        }
+    }
+    let tail = flags[full..n].iter().map(|&f| f == set);
+    count + gather(tail, base + full, &mut out[count..])
+}
+
+/// [`coin_lists`] from 0 with AVX2: 8 coins at a time, compared in 64-bit lanes (the 16-bit
+/// chunks and the threshold are far inside a signed compare), packed with [`left_pack8`].
+///
+/// # Safety
+/// The CPU must support AVX2 (and BMI1/BMI2).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+unsafe fn coin_lists_avx2(masks: &[u64], t: u64, lists: [&mut [u32]; 3]) -> [usize; 3] {
+    use std::arch::x86_64::*;
+    let n = masks
+        .len()
+        .min(lists[0].len())
+        .min(lists[1].len())
+        .min(lists[2].len());
+    let full = n / 8 * 8;
+    let mut counts = [0usize; 3];
+    // SAFETY: the loads read 8 u64 at `j < full <= masks.len() - 8`; list k's store writes 8
+    // lanes at `counts[k] <= j`, so up to j + 8 <= n <= the list's length.
+    unsafe {
+        // Chunks are below 2^16: a threshold clamped to 2^20 compares the same, signed.
+        let tv = _mm256_set1_epi64x(t.min(1 << 20) as i64);
+        let chunk = _mm256_set1_epi64x(0xffff);
+        for j in (0..full).step_by(8) {
+            let m0 = _mm256_loadu_si256(masks.as_ptr().add(j).cast());
+            let m1 = _mm256_loadu_si256(masks.as_ptr().add(j + 4).cast());
+            let below = |a: __m256i, b: __m256i| {
+                let lo = _mm256_cmpgt_epi64(tv, _mm256_and_si256(a, chunk));
+                let hi = _mm256_cmpgt_epi64(tv, _mm256_and_si256(b, chunk));
+                let lo = _mm256_movemask_pd(_mm256_castsi256_pd(lo)) as u32;
+                let hi = _mm256_movemask_pd(_mm256_castsi256_pd(hi)) as u32;
+                lo | (hi << 4)
+            };
+            let flags = [
+                below(m0, m1),
+                below(_mm256_srli_epi64::<16>(m0), _mm256_srli_epi64::<16>(m1)),
+                below(_mm256_srli_epi64::<32>(m0), _mm256_srli_epi64::<32>(m1)),
+            ];
+            for (k, &f) in flags.iter().enumerate() {
+                let at = lists[k].as_mut_ptr().add(counts[k]);
+                counts[k] += left_pack8(f, j, at);
+            }
+        }
+    }
+    let [hx, hy, hz] = lists;
+    coin_lists(&masks[full..n], t, [hx, hy, hz], full, counts)
 }
 
 /// [`gather_flags`] with AVX-512: 16 flags at a time, their indices compressed into `out`

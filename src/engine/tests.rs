@@ -908,14 +908,14 @@ fn every_instruction_set_gives_the_same_population() {
 
 #[cfg(target_arch = "x86_64")]
 #[test]
-fn the_avx512_coin_lists_are_the_scalar_ones() {
-    if !Isa::available().contains(&Isa::Avx512) {
-        println!("SKIP the_avx512_coin_lists_are_the_scalar_ones: this CPU has no AVX-512");
+fn the_simd_coin_lists_are_the_scalar_ones() {
+    if Isa::available().len() == 1 {
+        println!("SKIP the_simd_coin_lists_are_the_scalar_ones: this CPU has no AVX2");
         return;
     }
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
-    // Lengths around the 16-coin blocks; thresholds from never to always.
-    for n in [0, 1, 15, 16, 17, 31, 100, 2750] {
+    // Lengths around the 8- and 16-coin blocks; thresholds from never to always.
+    for n in [0, 1, 7, 8, 9, 15, 16, 17, 31, 100, 2750] {
         let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
         for t in [0u64, 1, 26214, 32768, 65535, 65536] {
             let mut want = vec![vec![u32::MAX; n]; 3];
@@ -923,15 +923,26 @@ fn the_avx512_coin_lists_are_the_scalar_ones() {
                 unreachable!()
             };
             let wc = coin_lists(&masks, t, [a, b, c], 0, [0; 3]);
-            let mut got = vec![vec![u32::MAX; n]; 3];
-            let [a, b, c] = &mut got[..] else {
-                unreachable!()
-            };
-            // SAFETY: AVX-512 F/BW/VL detected above.
-            let gc = unsafe { coin_lists_avx512(&masks, t, [a, b, c]) };
-            assert_eq!(wc, gc, "n {n} t {t}");
-            for k in 0..3 {
-                assert_eq!(want[k][..wc[k]], got[k][..gc[k]], "n {n} t {t} list {k}");
+            for &isa in &Isa::available()[1..] {
+                let mut got = vec![vec![u32::MAX; n]; 3];
+                let [a, b, c] = &mut got[..] else {
+                    unreachable!()
+                };
+                // SAFETY: `isa` is one this CPU has.
+                let gc = unsafe {
+                    match isa {
+                        Isa::Avx512 => coin_lists_avx512(&masks, t, [a, b, c]),
+                        _ => coin_lists_avx2(&masks, t, [a, b, c]),
+                    }
+                };
+                assert_eq!(wc, gc, "{isa:?} n {n} t {t}");
+                for k in 0..3 {
+                    assert_eq!(
+                        want[k][..wc[k]],
+                        got[k][..gc[k]],
+                        "{isa:?} n {n} t {t} list {k}"
+                    );
+                }
             }
         }
     }
