@@ -1220,11 +1220,9 @@ unsafe fn coin_lists_avx512(masks: &[u64], t: u64, lists: [&mut [u32]; 3]) -> [u
     unsafe {
         let tv = _mm512_set1_epi64(t as i64);
         let chunk = _mm512_set1_epi64(0xffff);
-        let iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         for j in (0..full).step_by(16) {
             let m0 = _mm512_loadu_si512(masks.as_ptr().add(j).cast());
             let m1 = _mm512_loadu_si512(masks.as_ptr().add(j + 8).cast());
-            let idx = _mm512_add_epi32(iota, _mm512_set1_epi32(j as i32));
             let below = |a: __m512i, b: __m512i| {
                 let lo = _mm512_cmplt_epu64_mask(_mm512_and_si512(a, chunk), tv);
                 let hi = _mm512_cmplt_epu64_mask(_mm512_and_si512(b, chunk), tv);
@@ -1236,12 +1234,7 @@ unsafe fn coin_lists_avx512(masks: &[u64], t: u64, lists: [&mut [u32]; 3]) -> [u
                 below(_mm512_srli_epi64::<32>(m0), _mm512_srli_epi64::<32>(m1)),
             ];
             for (k, &f) in flags.iter().enumerate() {
-                let c = f.count_ones();
-                let packed = _mm512_maskz_compress_epi32(f, idx);
-                let store = ((1u32 << c) - 1) as u16;
-                let at = lists[k].as_mut_ptr().add(counts[k]);
-                _mm512_mask_storeu_epi32(at.cast(), store, packed);
-                counts[k] += c as usize;
+                counts[k] += compress16(f, j, lists[k].as_mut_ptr().add(counts[k]));
             }
         }
     }
@@ -1275,6 +1268,29 @@ fn gather_flags(isa: Isa, flags: &[bool], set: bool, base: usize, out: &mut [u32
         Isa::Avx2 => unsafe { gather_flags_avx2(flags, set, base, out) },
         Isa::Baseline => gather(flags.iter().map(|&f| f == set), base, out),
     }
+}
+
+/// Writes the indices `base + lane` of the set bits of `mask` (16 lanes) at `out`, compressed
+/// to the front with one masked store (only the count is written), and returns the count.
+///
+/// # Safety
+/// The CPU must support AVX-512 F/BW/VL; `popcount(mask)` u32 must be writable at `out`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+#[inline]
+unsafe fn compress16(mask: u16, base: usize, out: *mut u32) -> usize {
+    use std::arch::x86_64::*;
+    let c = mask.count_ones();
+    // SAFETY: the store writes the `c` lanes of a mask below 2^c; the caller guarantees them.
+    unsafe {
+        let idx = _mm512_add_epi32(
+            _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
+            _mm512_set1_epi32(base as i32),
+        );
+        let packed = _mm512_maskz_compress_epi32(mask, idx);
+        _mm512_mask_storeu_epi32(out.cast(), ((1u32 << c) - 1) as u16, packed);
+    }
+    c as usize
 }
 
 /// For each 8-bit mask, the lanes of its set bits packed to the front (then zeros): the
@@ -1409,17 +1425,11 @@ unsafe fn gather_flags_avx512(flags: &[bool], set: bool, base: usize, out: &mut 
     // `popcount` lanes of a mask below 2^popcount at `count`, and count + popcount <= j + 16
     // <= n <= out.len().
     unsafe {
-        let iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         let want = _mm_set1_epi8(i8::from(set));
         for j in (0..full).step_by(16) {
             let f = _mm_loadu_si128(flags.as_ptr().add(j).cast());
             let m = _mm_cmpeq_epi8_mask(f, want);
-            let idx = _mm512_add_epi32(iota, _mm512_set1_epi32((base + j) as i32));
-            let packed = _mm512_maskz_compress_epi32(m, idx);
-            let c = m.count_ones();
-            let store = ((1u32 << c) - 1) as u16;
-            _mm512_mask_storeu_epi32(out.as_mut_ptr().add(count).cast(), store, packed);
-            count += c as usize;
+            count += compress16(m, base + j, out.as_mut_ptr().add(count));
         }
     }
     let tail = flags[full..n].iter().map(|&f| f == set);
