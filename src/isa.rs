@@ -2,8 +2,9 @@
 //!
 //! The release build targets the x86-64 baseline (SSE2), so one binary runs on any vehicle PC.
 //! The hottest loops (fitness evaluation, frame preparation, the immigrants' projection, the
-//! warnings) are also compiled with AVX2, the evaluation's window kernel also with AVX-512
-//! (one 32-byte window row a vector), and the CPU chooses at start. Every path gives
+//! warnings, and the selection, operators, mate index and sharing) are also compiled with AVX2,
+//! some with AVX-512 too (one 32-byte window row a vector, compressed index lists), and the
+//! CPU chooses at start. Every path gives
 //! bit-identical results (integer arithmetic, the same f32 operations in the same order; Rust
 //! never fuses a multiply and an add on its own): the choice changes speed, never a fitness, a
 //! fly or a frame. Tests compare the paths.
@@ -17,7 +18,9 @@ pub enum Isa {
     #[cfg(target_arch = "x86_64")]
     Avx2,
     /// AVX-512 F/BW/VL on top of AVX2 (x86-64-v4: Intel server CPUs since 2017, AMD since Zen 4).
-    /// Only the evaluation's window kernel has a 512-bit path; the other loops run their AVX2 one.
+    /// The window kernel, the index lists (compress) and the mate index's scan have 512-bit
+    /// code; the selection, evaluation and sharing are compiled for it; the rest run their AVX2
+    /// code.
     #[cfg(target_arch = "x86_64")]
     Avx512,
 }
