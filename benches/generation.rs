@@ -4,9 +4,9 @@
 //! generations in the proportions the daemon runs them.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use flyd::engine::{Engine, EngineParams};
-use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd::mock::MockStereo;
+use flyd_core::engine::{Engine, EngineParams};
+use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use std::hint::black_box;
 
 fn frames(mock: &mut MockStereo) -> Vec<StereoFrame> {

@@ -44,7 +44,7 @@ fn main() -> Result<()> {
 
     let mut cam = None;
     let setup = timed(3, |_| {
-        cam = Some(CameraRenderer::new(&rig.left)?);
+        cam = Some(CameraRenderer::new(&flyd::mock::Rays(&rig.left))?);
         Ok(())
     })?;
     report("setup: rays + static world, one camera", setup);

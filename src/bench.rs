@@ -6,11 +6,11 @@
 //! (a pair every 3 generations at 30 fps and ~10 ms a generation). Frames are rendered and
 //! prepared before timing starts: only `Engine::step` is timed.
 
-use crate::engine::{Engine, EngineParams, phase};
-use crate::frame::{PixelFormat, PreparedImage, StereoFrame};
-use crate::isa::Isa;
 use crate::mock::MockStereo;
 use crate::replay::Timing;
+use flyd_core::engine::{Engine, EngineParams, phase};
+use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd_core::isa::Isa;
 use serde::Serialize;
 use std::time::{Duration, Instant};
 

@@ -17,13 +17,13 @@ use std::time::Duration;
 use serde::Deserialize;
 use thiserror::Error;
 
-use crate::calib::{self, CalibError};
-use crate::can::CanConfig;
-use crate::can::messages::{Command, FaultBits};
 use crate::capture::CaptureFormat;
-use crate::decision::{DecisionConfig, DecisionConfigError};
-use crate::engine::{Engine, EngineError, EngineParams};
-use crate::geometry::StereoRig;
+use flyd_core::calib::{self, CalibError};
+use flyd_core::can::CanConfig;
+use flyd_core::can::messages::{Command, FaultBits};
+use flyd_core::decision::{DecisionConfig, DecisionConfigError};
+use flyd_core::engine::{Engine, EngineError, EngineParams};
+use flyd_core::geometry::StereoRig;
 
 /// Why a configuration cannot be used.
 #[derive(Debug, Error)]
@@ -1119,7 +1119,8 @@ interface = "can0"
             let file = path.join(name);
             let text = std::fs::read_to_string(&file).expect("shipped config");
             for seed in 0..1_500u64 {
-                match DaemonConfig::from_toml(&crate::test_support::damaged(&text, seed), &file) {
+                match DaemonConfig::from_toml(&flyd_core::test_support::damaged(&text, seed), &file)
+                {
                     Ok(_) => loaded += 1,
                     Err(e) => {
                         assert!(

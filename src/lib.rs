@@ -1,18 +1,13 @@
+//! flyd's runtime: the threaded daemon and its edges (V4L2 cameras, SocketCAN, systemd, logs),
+//! the hw-mock hardware, and the commands (`replay`, `bench`). The pure logic it drives (engine,
+//! decision, CAN protocol, geometry) is the `flyd_core` crate; the `flyd` binary is glue.
+
 pub mod bench;
-pub mod calib;
-pub mod can;
+pub mod bus;
 pub mod capture;
 pub mod config;
 pub mod daemon;
-pub mod dataset;
-pub mod decision;
-pub mod engine;
-pub mod frame;
-pub mod geometry;
-pub mod isa;
 pub mod logging;
 pub mod mock;
 pub mod replay;
 pub mod source;
-#[cfg(test)]
-mod test_support;

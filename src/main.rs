@@ -2,9 +2,9 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use flyd::engine::{Engine, EngineParams};
-use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd::replay::{self, Summary, Timing, TraceRow};
+use flyd_core::engine::{Engine, EngineParams};
+use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -61,7 +61,7 @@ struct BenchArgs {
     /// Instruction set of the hot loops: baseline, avx2 or avx512 (default: the best this CPU
     /// has; every one gives the same population).
     #[arg(long, value_parser = parse_isa)]
-    isa: Option<flyd::isa::Isa>,
+    isa: Option<flyd_core::isa::Isa>,
     /// Instead: reaction time of the whole threaded daemon on hw-mock (config/demo.toml), from
     /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
     #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
@@ -145,7 +145,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
     else {
         bail!("replay needs --left, --right and --calib (or --scenario)");
     };
-    let cal = flyd::calib::load(calib_path)?;
+    let cal = flyd_core::calib::load(calib_path)?;
     let left = replay::load_rgb(left_path)?;
     let right = replay::load_rgb(right_path)?;
     for (name, img, cam) in [
@@ -247,7 +247,7 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
         });
     }
     replay::write_outputs(&args.out, &engine, &left_rgb, &trace)?;
-    let decision = flyd::decision::DecisionConfig::default();
+    let decision = flyd_core::decision::DecisionConfig::default();
     let reaction = first_obstacle.and_then(|f| {
         replay::Reaction::of(
             &trace,
@@ -265,9 +265,9 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
     )
 }
 
-fn parse_isa(name: &str) -> std::result::Result<flyd::isa::Isa, String> {
-    flyd::isa::Isa::available_by_name(name).ok_or_else(|| {
-        let names: Vec<&str> = flyd::isa::Isa::available()
+fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {
+    flyd_core::isa::Isa::available_by_name(name).ok_or_else(|| {
+        let names: Vec<&str> = flyd_core::isa::Isa::available()
             .iter()
             .map(|i| i.name())
             .collect();
@@ -399,7 +399,7 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
 
 fn run_daemon(
     cameras: daemon::Cameras,
-    bus: Box<dyn flyd::can::bus::CanBus>,
+    bus: Box<dyn flyd_core::can::bus::CanBus>,
     clock: daemon::SharedClock,
     config: &DaemonConfig,
     shutdown: Shutdown,

@@ -13,17 +13,20 @@
 use hw_mock::{CameraRenderer, RayCamera, RenderError, Scenario, SensorModel};
 use nalgebra::Point3;
 
-use crate::geometry::{
+use flyd_core::geometry::{
     Camera, CameraError, Distortion, Intrinsics, StereoRig, rotation_from_angles,
 };
 
-impl RayCamera for Camera {
+/// A flyd camera as hw-mock's renderer sees it: the rays of its model.
+pub struct Rays<'a>(pub &'a Camera);
+
+impl RayCamera for Rays<'_> {
     fn size(&self) -> (u32, u32) {
-        (self.width(), self.height())
+        (self.0.width(), self.0.height())
     }
 
     fn ray(&self, u: f64, v: f64) -> Option<([f64; 3], [f64; 3])> {
-        let (o, d) = self.ray_from_pixel(u, v)?;
+        let (o, d) = self.0.ray_from_pixel(u, v)?;
         Some(([o.x, o.y, o.z], [d.x, d.y, d.z]))
     }
 }
@@ -125,12 +128,12 @@ impl MockStereo {
         rig: StereoRig,
         sensor: SensorModel,
     ) -> Result<Self, MockError> {
-        let (l, r) = (RayCamera::size(&rig.left), RayCamera::size(&rig.right));
+        let (l, r) = (Rays(&rig.left).size(), Rays(&rig.right).size());
         if l != r {
             return Err(MockError::SizeMismatch { left: l, right: r });
         }
-        let left = CameraRenderer::new(&rig.left)?;
-        let right = CameraRenderer::new(&rig.right)?;
+        let left = CameraRenderer::new(&Rays(&rig.left))?;
+        let right = CameraRenderer::new(&Rays(&rig.right))?;
         let pixels = l.0 as usize * l.1 as usize;
         Ok(Self {
             scenario,
@@ -249,14 +252,14 @@ mod tests {
     fn fast_renderer_matches_reference_through_the_distorted_rig() {
         let rig = mock_rig(96, 72).expect("valid");
         let sensor = SensorModel::default();
-        let mut fast = CameraRenderer::new(&rig.right).expect("valid");
+        let mut fast = CameraRenderer::new(&Rays(&rig.right)).expect("valid");
         let n = 96 * 72;
         for name in ["car-approaching", "pedestrian-steps-in"] {
             let scenario = Scenario::by_name(name).expect("exists");
             for frame in [0, 45, 149] {
                 let scene = scenario.scene_at(frame);
                 let (mut a, mut b) = (vec![0; n * 3], vec![0; n * 3]);
-                hw_mock::render(&scene, &rig.right, &sensor, frame, 1, &mut a, None)
+                hw_mock::render(&scene, &Rays(&rig.right), &sensor, frame, 1, &mut a, None)
                     .expect("renders");
                 fast.render(&scene, &sensor, frame, 1, &mut b, None)
                     .expect("renders");

@@ -3,7 +3,7 @@
 //! Outputs, in the output directory:
 //! - `flies.csv`: one fly a row, `x,y,z,fitness,warning,u_left,v_left,u_right,v_right` (metres,
 //!   pixels; `fitness` is the value selection ranks by, after the region of interest and
-//!   sharing; `warning` is computed from the fitness *before* sharing, see [`crate::engine`];
+//!   sharing; `warning` is computed from the fitness *before* sharing, see [`flyd_core::engine`];
 //!   flies outside an image have empty projections);
 //! - `overlay.png`: the left image with the best 250 flies as crosses (the paper's figures 5, 7);
 //! - `warnings.png`: each fly a spot as dark as its warning (figures 6, 8);
@@ -13,7 +13,7 @@
 //!
 //! This is a command at the edge: it reads files and the clock; the engine does neither.
 
-use crate::engine::{Engine, GenerationStats, Population};
+use flyd_core::engine::{Engine, GenerationStats, Population};
 use image::{GrayImage, Luma, Rgb, RgbImage};
 use serde::Serialize;
 use std::io::Write;

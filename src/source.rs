@@ -14,7 +14,7 @@
 //! - Retryable errors (timeout, device gone) leave the source usable or reopenable; fatal ones
 //!   (a format the device will not deliver) are reported and retried with backoff by the caller.
 
-use crate::frame::PreparedImage;
+use flyd_core::frame::PreparedImage;
 use std::time::Duration;
 
 /// What a source knows about a frame it delivered.

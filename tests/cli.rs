@@ -6,8 +6,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use flyd::can::candump::parse_candump_line;
-use flyd::can::messages::{State, StatusMsg};
+use flyd_core::can::candump::parse_candump_line;
+use flyd_core::can::messages::{State, StatusMsg};
 
 fn flyd(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_flyd"))

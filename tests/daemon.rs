@@ -10,9 +10,9 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::*;
-use flyd::can::bus::BusError;
-use flyd::can::messages::{Command, CommandReason, FaultBits, State};
 use flyd::daemon::EndReason;
+use flyd_core::can::bus::BusError;
+use flyd_core::can::messages::{Command, CommandReason, FaultBits, State};
 
 #[test]
 fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {

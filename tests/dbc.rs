@@ -13,12 +13,12 @@ mod dbc_signals;
 
 use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
 use dbc_signals::{raw_value, value_table};
-use flyd::can::crc::e2e_crc;
-use flyd::can::messages::{
+use flyd_core::can::crc::e2e_crc;
+use flyd_core::can::messages::{
     AliveCounter, CanMessage, Command, CommandMsg, CommandReason, FaultBits, ObstacleMsg, State,
     StatusMsg,
 };
-use flyd::can::{CanConfig, MessageConfig};
+use flyd_core::can::{CanConfig, MessageConfig};
 
 fn load() -> Dbc {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/flyd.dbc");

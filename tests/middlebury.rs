@@ -5,7 +5,7 @@
 //! ground truth at their left pixel (pixels of unknown truth excluded), and those 250 flies
 //! occupy at least 50 distinct 16x16-pixel cells of the left image.
 
-use flyd::dataset::read_pfm;
+use flyd_core::dataset::read_pfm;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

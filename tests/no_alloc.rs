@@ -1,8 +1,8 @@
 //! "No allocation per generation": a counting allocator watches `Engine::step`.
 
-use flyd::engine::{Engine, EngineParams};
-use flyd::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd::mock::MockStereo;
+use flyd_core::engine::{Engine, EngineParams};
+use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 

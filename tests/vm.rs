@@ -34,8 +34,8 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use can_log::{Decoder, Frame};
-use flyd::can::messages::FaultBits;
 use flyd::mock::MockStereo;
+use flyd_core::can::messages::FaultBits;
 use harness::{Run, Scenario, guest_tool};
 use hw_mock::Scenario as World;
 
@@ -469,7 +469,7 @@ fn pedestrian_run() -> &'static FlydRun {
 #[test]
 fn guest_rig_file_is_the_feeders_mock_rig() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vm/config/mock-rig-320x240.toml");
-    let file = flyd::calib::load(&path).expect("loads").rig;
+    let file = flyd_core::calib::load(&path).expect("loads").rig;
     let mock = flyd::mock::mock_rig(320, 240).expect("valid");
     for (side, a, b) in [
         ("left", &file.left, &mock.left),

@@ -17,7 +17,7 @@
 //! YUYV to grey keeps the Y byte as is (no range expansion: the fitness compares pixels of two
 //! cameras treated the same way, and gradients only scale).
 
-use crate::frame::{FrameError, PixelFormat, PreparedImage};
+use flyd_core::frame::{FrameError, PixelFormat, PreparedImage};
 use zune_jpeg::JpegDecoder;
 use zune_jpeg::zune_core::bytestream::ZCursor;
 use zune_jpeg::zune_core::colorspace::ColorSpace;

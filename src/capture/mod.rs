@@ -1,7 +1,7 @@
 //! Camera capture: V4L2 devices as [`FrameSource`](crate::source::FrameSource)s.
 //!
 //! - [`convert`]: pure, tested conversions of what cameras send (YUYV, MJPEG, GREY) into the
-//!   packed RGB8 or grey pixels [`PreparedImage`](crate::frame::PreparedImage) takes.
+//!   packed RGB8 or grey pixels [`PreparedImage`](flyd_core::frame::PreparedImage) takes.
 //! - [`v4l2`]: [`V4l2Source`], the thin device layer over the `v4l` crate: format negotiation,
 //!   mmap streaming with a dequeue timeout, teardown that survives a vanished device.
 //!

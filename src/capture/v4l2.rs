@@ -28,8 +28,8 @@
 //! a character).
 
 use super::convert::{CaptureFormat, ConvertError, FrameConverter, fourcc_str};
-use crate::frame::{PixelFormat, PreparedImage};
 use crate::source::{FrameMeta, FrameSource, SourceError};
+use flyd_core::frame::{PixelFormat, PreparedImage};
 use std::io;
 use std::os::raw::{c_int, c_void};
 use std::path::PathBuf;

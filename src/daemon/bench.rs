@@ -20,9 +20,9 @@ use serde::Serialize;
 use super::clock::{MonotonicClock, SharedClock};
 use super::mock_camera::mock_cameras;
 use super::{DaemonError, Shutdown, run, spawn_named};
-use crate::can::bus::MemoryBus;
-use crate::can::messages::{CanMessage, Command, CommandMsg};
+use crate::bus::MemoryBus;
 use crate::config::{CameraSource, DaemonConfig};
+use flyd_core::can::messages::{CanMessage, Command, CommandMsg};
 
 /// The demo configuration (config/demo.toml), which the benchmark runs by default.
 pub const DEMO_CONFIG: &str = include_str!("../../config/demo.toml");

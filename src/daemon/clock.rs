@@ -3,13 +3,13 @@
 //! Frame timestamps ([`crate::source::FrameMeta::timestamp`]) and the daemon clock must share a
 //! timebase, since the control thread compares them (perception age, reaction time). V4L2 stamps
 //! buffers with CLOCK_MONOTONIC, so production uses [`MonotonicClock`]; tests pass a
-//! [`crate::can::bus::ManualClock`] or the monotonic clock, and their sources stamp frames with
+//! [`flyd_core::clock::ManualClock`] or the monotonic clock, and their sources stamp frames with
 //! the same clock.
 
 use std::sync::Arc;
 use std::time::Duration;
 
-pub use crate::can::bus::Clock;
+pub use flyd_core::clock::Clock;
 
 /// A clock all daemon threads can read.
 pub type SharedClock = Arc<dyn Clock + Sync>;

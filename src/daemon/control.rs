@@ -45,10 +45,10 @@ use super::ring::RingCounters;
 use super::snapshot::{ObstacleEstimate, Snapshot};
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
-use crate::can::bus::{BusError, CanBus};
-use crate::can::messages::{Command, FaultBits, State, StatusMsg};
-use crate::can::{CanConfig, Transmitter};
-use crate::decision::{Decider, DecisionInput};
+use flyd_core::can::bus::{BusError, CanBus};
+use flyd_core::can::messages::{Command, FaultBits, State, StatusMsg};
+use flyd_core::can::{CanConfig, Transmitter};
+use flyd_core::decision::{Decider, DecisionInput};
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
 const MAX_TURN: Duration = Duration::from_millis(5);

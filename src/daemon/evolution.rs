@@ -28,9 +28,9 @@ use super::ring::FrameReader;
 use super::snapshot::{ObstacleEstimator, Snapshot};
 use super::threads::Shutdown;
 use crate::config::EvolutionConfig;
-use crate::engine::{Engine, EngineError};
-use crate::frame::StereoFrame;
 use crate::source::FrameMeta;
+use flyd_core::engine::{Engine, EngineError};
+use flyd_core::frame::StereoFrame;
 
 /// Counters the control thread reads (statistics, `Relaxed`).
 #[derive(Debug, Default)]

@@ -7,10 +7,11 @@ use std::path::Path;
 use super::DaemonError;
 use super::clock::SharedClock;
 use super::mock_camera::mock_cameras;
-use crate::can::bus::{CanBus, CandumpLogBus, RetryPolicy, SocketCanBus, SystemClock};
+use crate::bus::{CandumpLogBus, RetryPolicy, SocketCanBus, SystemClock};
 use crate::capture::{V4l2Config, V4l2Source};
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
 use crate::source::FrameSource;
+use flyd_core::can::bus::CanBus;
 
 /// The bus `target` names: a SocketCAN interface, or a candump log (`-` = stdout) whose
 /// lines carry wall-clock timestamps as `candump -l` writes them (each line is flushed

@@ -17,9 +17,9 @@ use hw_mock::Scenario;
 
 use super::clock::SharedClock;
 use super::pairer::Side;
-use crate::frame::{PixelFormat, PreparedImage};
 use crate::mock::{MockError, MockStereo};
 use crate::source::{FrameMeta, FrameSource, SourceError};
+use flyd_core::frame::{PixelFormat, PreparedImage};
 
 /// What both cameras share.
 struct Feed {
@@ -217,7 +217,7 @@ impl FrameSource for MockCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::can::bus::ManualClock;
+    use flyd_core::clock::ManualClock;
 
     #[test]
     fn both_cameras_deliver_the_same_frames_with_the_same_timestamps() {

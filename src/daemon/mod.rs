@@ -13,7 +13,7 @@
 //! - [`pairer`]: left/right matching by capture timestamp (pure).
 //! - [`evolution`]: one generation per period on the newest pair, [`Snapshot`]s out with
 //!   `try_send` (never blocks).
-//! - [`control`]: decisions ([`crate::decision::Decider`]), fault detection ([`faults`]), CAN
+//! - [`control`]: decisions ([`flyd_core::decision::Decider`]), fault detection ([`faults`]), CAN
 //!   frames at fixed periods, logs, systemd notifications ([`notify`]).
 //!
 //! # Invariants
@@ -57,16 +57,16 @@ pub use hardware::Cameras;
 pub use snapshot::{ObstacleEstimate, Snapshot};
 pub use threads::{Shutdown, spawn_named};
 
-use crate::can::bus::CanBus;
-use crate::can::{CanConfigError, Transmitter};
 use crate::config::{ConfigError, DaemonConfig};
-use crate::decision::{Decider, DecisionConfigError};
-use crate::engine::{Engine, EngineError};
-use crate::frame::{FrameError, PreparedImage, StereoFrame};
 use capture::{CameraHealth, CaptureThread};
 use control::{ControlThread, Inputs};
 use evolution::{EvolutionCounters, EvolutionThread};
 use faults::{FaultConfig, FaultMonitor};
+use flyd_core::can::bus::CanBus;
+use flyd_core::can::{CanConfigError, Transmitter};
+use flyd_core::decision::{Decider, DecisionConfigError};
+use flyd_core::engine::{Engine, EngineError};
+use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use notify::ServiceNotifier;
 use pairer::{Pairer, Side};
 use ring::frame_ring;
@@ -98,7 +98,7 @@ pub enum DaemonError {
     #[error("CAN bus {target}: {error}")]
     Bus {
         target: String,
-        error: crate::can::bus::BusError,
+        error: flyd_core::can::bus::BusError,
     },
     #[error("CAN log {path}: {error}")]
     CanLog { path: String, error: std::io::Error },

@@ -13,7 +13,7 @@
 //! - **Old frames are overwritten**: a frame published while the previous one was never fetched
 //!   replaces it; the writer counts it in [`RingCounters::dropped`].
 //! - The reader owns its slot until its next fetch, and may *swap* the image out of it
-//!   ([`FrameReader::slot_mut`]) into a [`crate::frame::StereoFrame`]: zero copy. The image it
+//!   ([`FrameReader::slot_mut`]) into a [`flyd_core::frame::StereoFrame`]: zero copy. The image it
 //!   swaps in goes back into the rotation and is overwritten by a later capture.
 //!
 //! # Memory ordering
@@ -32,8 +32,8 @@ use std::time::Duration;
 
 use triple_buffer::{Input, Output, TripleBuffer};
 
-use crate::frame::{FrameError, PreparedImage};
 use crate::source::FrameMeta;
+use flyd_core::frame::{FrameError, PreparedImage};
 
 /// One frame and what is known about it.
 #[derive(Debug, Clone)]
@@ -167,7 +167,7 @@ impl FrameReader {
 mod tests {
     use super::*;
     use crate::daemon::threads::spawn_named;
-    use crate::frame::PixelFormat;
+    use flyd_core::frame::PixelFormat;
 
     /// A frame that identifies `seq` in a way photometric normalisation keeps: the columns left
     /// of `1 + seq % (width - 1)` are dark, the others bright, on every row.

@@ -15,9 +15,9 @@
 
 use std::time::Duration;
 
-use crate::can::messages::ObstacleMsg;
-use crate::engine::Population;
 use crate::source::FrameMeta;
+use flyd_core::can::messages::ObstacleMsg;
+use flyd_core::engine::Population;
 
 /// The nearest obstacle in the lane, vehicle frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,7 +56,7 @@ pub struct Snapshot {
     /// Where the evidence is, m^-3 (diagnostic, see the engine docs).
     pub danger: f64,
     /// Fraction of the flies evaluated in the generation whose windows match (see
-    /// [`crate::engine::GenerationStats`]): what `blind` is judged on, logged with the stats.
+    /// [`flyd_core::engine::GenerationStats`]): what `blind` is judged on, logged with the stats.
     pub matched: f64,
     /// On the last `blind_pairs` new pairs, fewer than `blind_matched` of the flies matched:
     /// the images match nowhere, so a low warning proves nothing (CAMERA_ERROR).

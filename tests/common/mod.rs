@@ -9,17 +9,17 @@ use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use flyd::can::bus::{MemoryBus, RecordedFrame};
-use flyd::can::messages::{
-    AliveCounter, CanMessage, Command, CommandMsg, CommandReason, ObstacleMsg, State, StatusMsg,
-};
+use flyd::bus::{MemoryBus, RecordedFrame};
 use flyd::config::DaemonConfig;
 use flyd::daemon::{self, MonotonicClock, RunReport, SharedClock, Shutdown};
-use flyd::decision::DecisionConfig;
-use flyd::engine::EngineParams;
-use flyd::frame::{PixelFormat, PreparedImage};
-use flyd::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
 use flyd::source::{FrameMeta, FrameSource, SourceError};
+use flyd_core::can::messages::{
+    AliveCounter, CanMessage, Command, CommandMsg, CommandReason, ObstacleMsg, State, StatusMsg,
+};
+use flyd_core::decision::DecisionConfig;
+use flyd_core::engine::EngineParams;
+use flyd_core::frame::{PixelFormat, PreparedImage};
+use flyd_core::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
 use nalgebra::Point3;
 
 pub const W: u32 = 160;
@@ -313,7 +313,7 @@ pub enum Frame {
 }
 
 pub fn decode(f: &RecordedFrame) -> Frame {
-    fn ctx<T>(f: &RecordedFrame) -> impl Fn(flyd::can::messages::DecodeError) -> T + '_ {
+    fn ctx<T>(f: &RecordedFrame) -> impl Fn(flyd_core::can::messages::DecodeError) -> T + '_ {
         move |e| panic!("frame {:#x} {:02x?} does not decode: {e}", f.id, f.data)
     }
     match f.id {

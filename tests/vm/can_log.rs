@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use crate::dbc_signals::{raw_value, value_table};
 use can_dbc::{AttributeValue, Dbc, Message};
-use flyd::can::crc::e2e_crc;
+use flyd_core::can::crc::e2e_crc;
 
 /// One frame of the log, decoded.
 #[derive(Debug, Clone)]

@@ -7,7 +7,7 @@ use crate::geometry::{Distortion, Intrinsics};
 use crate::test_support::damaged;
 
 fn fixture(relative: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
         .join("tests/fixtures")
         .join(relative)
 }

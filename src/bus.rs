@@ -1,148 +1,45 @@
-//! Where frames go: the [`CanBus`] trait and its backends.
+//! The CAN transports: where [`CanBus`] frames really go.
 //!
 //! - [`SocketCanBus`]: a Linux SocketCAN raw socket (real `can0` or `vcan0`).
 //! - [`CandumpLogBus`]: `candump -l` lines to any [`Write`] (file, stdout), replayable with
 //!   `canplayer`; for running without CAN hardware.
 //! - [`MemoryBus`]: records frames in memory for tests, and can be told to fail.
 //!
-//! IDs follow Linux `canid_t`: bit 31 ([`CAN_EFF_FLAG`]) set = 29-bit extended, otherwise
-//! 11-bit standard; every backend rejects IDs and lengths a classic CAN frame cannot carry.
-//!
-//! # Error classes
-//! [`BusError::is_retryable`] tells whether sending the *same frame on the same bus later* may
-//! work, so the caller keeps the bus and tries again next period:
-//!
-//! | class | errors | typical cause |
-//! |-------|--------|---------------|
-//! | retryable | [`BusError::WouldBlock`] (EAGAIN), [`BusError::QueueFull`] (ENOBUFS) | TX queue full: bus saturated, unacknowledged frames (no other node), or around bus-off |
-//! | retryable | [`BusError::InterfaceDown`] (ENETDOWN) | `ip link set can0 down`, or the driver took it down after bus-off |
-//! | retryable | [`BusError::BusOff`] | the controller reported bus-off (error frame) and writes fail |
-//! | fatal | [`BusError::InvalidFrame`] | a bug: ID or length not sendable |
-//! | fatal | [`BusError::NoDevice`] (ENODEV, ENXIO) | interface does not exist or was removed: reopen needed |
-//! | fatal | [`BusError::Unsupported`] (EAFNOSUPPORT, EPROTONOSUPPORT) | kernel without CAN |
-//! | fatal | [`BusError::Io`] | anything else (EBADF, EPERM, a log file's ENOSPC, ...) |
-//!
-//! Fatal means "this handle will not send this frame": the daemon reports it (fault bit 6) and
-//! decides whether to reopen the bus; retrying in a loop would not help.
+//! Errors are classified into [`BusError`]'s retryable and fatal classes by errno
+//! ([`classify`]); the classes are documented with the trait, in `flyd_core::can::bus`.
 
 use std::collections::VecDeque;
 use std::io::{self, Write};
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use thiserror::Error;
+use flyd_core::can::bus::{BusError, CanBus, check_frame};
+use flyd_core::can::candump::{CAN_EFF_FLAG, CAN_EFF_MAX, format_candump_line};
+use flyd_core::clock::Clock;
 
-use super::candump::{CAN_EFF_FLAG, CAN_EFF_MAX, CAN_MAX_DLEN, CAN_SFF_MAX, format_candump_line};
-
-/// A destination for CAN frames.
-pub trait CanBus: Send {
-    /// Queues one classic CAN data frame for transmission. `id` uses the [`CAN_EFF_FLAG`]
-    /// convention; `data` is at most 8 bytes. Must not block for long: flyd sends from a 20 ms
-    /// loop.
-    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError>;
-}
-
-impl<B: CanBus + ?Sized> CanBus for Box<B> {
-    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
-        (**self).send(id, data)
+/// Classifies an I/O error by its errno (falling back to its kind when there is none).
+pub fn classify(e: &io::Error) -> BusError {
+    match e.raw_os_error() {
+        Some(errno) => from_errno(errno, e),
+        None if e.kind() == io::ErrorKind::WouldBlock => BusError::WouldBlock,
+        None => BusError::Io {
+            errno: None,
+            message: e.to_string(),
+        },
     }
 }
 
-/// A failed send, classified (see the module docs for the classes).
-///
-/// It is `Clone + PartialEq` (it keeps the errno, not the `io::Error`) so that tests can make
-/// [`MemoryBus`] fail with any of them and compare.
-#[derive(Debug, Clone, PartialEq, Eq, Error)]
-pub enum BusError {
-    #[error("CAN socket send buffer full (EAGAIN)")]
-    WouldBlock,
-    #[error("CAN transmit queue full (ENOBUFS) after {attempts} attempt(s)")]
-    QueueFull { attempts: u32 },
-    #[error("CAN interface is down (ENETDOWN)")]
-    InterfaceDown,
-    #[error("CAN controller is bus-off")]
-    BusOff,
-    #[error("invalid CAN frame: id {id:#x} with {len} data bytes")]
-    InvalidFrame { id: u32, len: usize },
-    #[error("CAN interface not found or removed (errno {errno})")]
-    NoDevice { errno: i32 },
-    #[error("CAN is not supported by this kernel (errno {errno})")]
-    Unsupported { errno: i32 },
-    #[error("CAN I/O error: {message}")]
-    Io { errno: Option<i32>, message: String },
-}
-
-impl BusError {
-    /// `true`: keep the bus and try again later; `false`: this handle cannot send the frame.
-    pub fn is_retryable(&self) -> bool {
-        matches!(
-            self,
-            Self::WouldBlock | Self::QueueFull { .. } | Self::InterfaceDown | Self::BusOff
-        )
-    }
-
-    pub fn is_fatal(&self) -> bool {
-        !self.is_retryable()
-    }
-
-    /// Classifies an I/O error by its errno (falling back to its kind when there is none).
-    pub fn from_io(e: &io::Error) -> Self {
-        match e.raw_os_error() {
-            Some(errno) => Self::from_errno(errno, e),
-            None if e.kind() == io::ErrorKind::WouldBlock => Self::WouldBlock,
-            None => Self::Io {
-                errno: None,
-                message: e.to_string(),
-            },
-        }
-    }
-
-    fn from_errno(errno: i32, e: &io::Error) -> Self {
-        match errno {
-            libc::EAGAIN => Self::WouldBlock,
-            libc::ENOBUFS => Self::QueueFull { attempts: 1 },
-            libc::ENETDOWN => Self::InterfaceDown,
-            libc::ENODEV | libc::ENXIO => Self::NoDevice { errno },
-            libc::EAFNOSUPPORT | libc::EPROTONOSUPPORT => Self::Unsupported { errno },
-            _ => Self::Io {
-                errno: Some(errno),
-                message: e.to_string(),
-            },
-        }
-    }
-}
-
-/// Rejects what a classic CAN data frame cannot carry, before any backend sees it.
-fn check_frame(id: u32, data: &[u8]) -> Result<(), BusError> {
-    let id_ok = if id & CAN_EFF_FLAG != 0 {
-        id & !CAN_EFF_FLAG <= CAN_EFF_MAX
-    } else {
-        id <= CAN_SFF_MAX
-    };
-    if id_ok && data.len() <= CAN_MAX_DLEN {
-        Ok(())
-    } else {
-        Err(BusError::InvalidFrame {
-            id,
-            len: data.len(),
-        })
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Clocks
-
-/// Where log and test backends get timestamps from, so that the logic never reads the system
-/// clock itself and tests are deterministic.
-pub trait Clock: Send {
-    /// Time since the clock's epoch (the Unix epoch for [`SystemClock`]).
-    fn now(&self) -> Duration;
-}
-
-impl<F: Fn() -> Duration + Send> Clock for F {
-    fn now(&self) -> Duration {
-        self()
+fn from_errno(errno: i32, e: &io::Error) -> BusError {
+    match errno {
+        libc::EAGAIN => BusError::WouldBlock,
+        libc::ENOBUFS => BusError::QueueFull { attempts: 1 },
+        libc::ENETDOWN => BusError::InterfaceDown,
+        libc::ENODEV | libc::ENXIO => BusError::NoDevice { errno },
+        libc::EAFNOSUPPORT | libc::EPROTONOSUPPORT => BusError::Unsupported { errno },
+        _ => BusError::Io {
+            errno: Some(errno),
+            message: e.to_string(),
+        },
     }
 }
 
@@ -157,40 +54,6 @@ impl Clock for SystemClock {
             .duration_since(UNIX_EPOCH)
             .unwrap_or_default()
     }
-}
-
-/// A clock tests set by hand; clones share the same time.
-#[derive(Debug, Clone, Default)]
-pub struct ManualClock(Arc<AtomicU64>);
-
-impl ManualClock {
-    pub fn new(start: Duration) -> Self {
-        let clock = Self::default();
-        clock.set(start);
-        clock
-    }
-
-    pub fn set(&self, t: Duration) {
-        self.0.store(saturating_nanos(t), Ordering::Relaxed);
-    }
-
-    pub fn advance(&self, dt: Duration) {
-        let _ = self
-            .0
-            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| {
-                Some(n.saturating_add(saturating_nanos(dt)))
-            });
-    }
-}
-
-impl Clock for ManualClock {
-    fn now(&self) -> Duration {
-        Duration::from_nanos(self.0.load(Ordering::Relaxed))
-    }
-}
-
-fn saturating_nanos(t: Duration) -> u64 {
-    u64::try_from(t.as_nanos()).unwrap_or(u64::MAX)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -322,7 +185,7 @@ impl<W: Write + Send, C: Clock> CandumpLogBus<W, C> {
         self.out
             .write_all(line.as_bytes())
             .and_then(|()| self.out.flush())
-            .map_err(|e| BusError::from_io(&e))
+            .map_err(|e| classify(&e))
     }
 
     pub fn get_ref(&self) -> &W {
@@ -386,7 +249,7 @@ pub fn write_with_retry(
             Some(libc::EAGAIN | libc::ENOBUFS | libc::EINTR)
         ) || error.kind() == io::ErrorKind::WouldBlock;
         if !transient || attempt >= max {
-            return Err(match BusError::from_io(&error) {
+            return Err(match classify(&error) {
                 BusError::QueueFull { .. } => BusError::QueueFull { attempts: attempt },
                 // EINTR on the last attempt: nothing is wrong with the bus.
                 BusError::Io {
@@ -436,7 +299,7 @@ impl SocketCanBus {
     /// exist and [`BusError::Unsupported`] on a kernel without CAN.
     pub fn open(iface: &str, policy: RetryPolicy) -> Result<Self, BusError> {
         use socketcan::{Socket, SocketOptions};
-        let io = |e: io::Error| BusError::from_io(&e);
+        let io = |e: io::Error| classify(&e);
         let socket = socketcan::CanSocket::open(iface).map_err(io)?;
         socket.set_nonblocking(true).map_err(io)?;
         socket.set_filter_drop_all().map_err(io)?;
@@ -522,7 +385,8 @@ impl CanBus for SocketCanBus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::can::candump::parse_candump_line;
+    use flyd_core::can::candump::parse_candump_line;
+    use flyd_core::clock::ManualClock;
 
     fn os(errno: i32) -> io::Error {
         io::Error::from_raw_os_error(errno)
@@ -555,17 +419,17 @@ mod tests {
             ),
         ];
         for (errno, want, retryable) in cases {
-            let got = BusError::from_io(&os(errno));
+            let got = classify(&os(errno));
             assert_eq!(got, want, "errno {errno}");
             assert_eq!(got.is_retryable(), retryable, "errno {errno}");
         }
-        let other = BusError::from_io(&os(libc::EPERM));
+        let other = classify(&os(libc::EPERM));
         assert!(matches!(other, BusError::Io { errno: Some(e), .. } if e == libc::EPERM));
         assert!(other.is_fatal());
         assert!(BusError::BusOff.is_retryable());
         assert!(BusError::InvalidFrame { id: 0x800, len: 0 }.is_fatal());
         assert_eq!(
-            BusError::from_io(&io::Error::from(io::ErrorKind::WouldBlock)),
+            classify(&io::Error::from(io::ErrorKind::WouldBlock)),
             BusError::WouldBlock
         );
     }
@@ -756,5 +620,59 @@ mod tests {
         let mut bus = CandumpLogBus::new(Full, "vcan0", SystemClock);
         let err = bus.send(0x120, &[]).expect_err("disk full");
         assert!(err.is_fatal(), "{err:?}");
+    }
+
+    /// The daemon-without-hardware path: Transmitter into a candump log, read back with the
+    /// parser and decoded, as a canplayer replay would deliver it.
+    #[test]
+    fn candump_log_from_transmitter_decodes_back() {
+        use flyd_core::can::messages::{
+            CanMessage, Command, CommandMsg, CommandReason, State, StatusMsg,
+        };
+        use flyd_core::can::{CanConfig, Transmitter};
+        use flyd_core::clock::ManualClock;
+
+        let status = StatusMsg {
+            state: State::Running,
+            faults: flyd_core::can::messages::FaultBits::empty(),
+            perception_age: Duration::from_millis(30),
+            generations_per_sec: 100.0,
+            cam_fps_left: 30.0,
+            cam_fps_right: 30.0,
+        };
+        let clock = ManualClock::new(Duration::from_secs(1_700_000_000));
+        let log = CandumpLogBus::new(Vec::new(), "vcan0", clock.clone());
+        let mut tx = Transmitter::new(log, CanConfig::default()).expect("valid");
+        for _ in 0..3 {
+            tx.send_command(&CommandMsg {
+                command: Command::Slow,
+                requested_decel: 1.5,
+                global_warning: 0.42,
+                reason: CommandReason::Perception,
+            })
+            .expect("written");
+            tx.send_status(&status).expect("written");
+            clock.advance(Duration::from_millis(20));
+        }
+        let text = String::from_utf8(tx.into_bus().into_inner()).expect("utf8");
+
+        let mut commands = 0;
+        for line in text.lines() {
+            let (_, iface, id, data) = parse_candump_line(line).expect("parses");
+            assert_eq!(iface, "vcan0");
+            match id {
+                0x120 => {
+                    let (msg, counter) =
+                        CommandMsg::decode_with(&data, CommandMsg::DEFAULT_DATA_ID).expect("ok");
+                    assert_eq!(msg.command, Command::Slow);
+                    assert_eq!(msg.reason, CommandReason::Perception);
+                    assert_eq!(counter.value(), commands);
+                    commands += 1;
+                }
+                0x121 => assert_eq!(StatusMsg::decode(&data), Ok(status)),
+                other => panic!("unexpected id {other:#x}"),
+            }
+        }
+        assert_eq!(commands, 3);
     }
 }

@@ -2,7 +2,7 @@
 
 /// Deterministic byte-level damage to a valid file: what an editor, a truncated copy or a bad
 /// merge does. xorshift, so the cases are the same on every run.
-pub(crate) fn damaged(text: &str, seed: u64) -> String {
+pub fn damaged(text: &str, seed: u64) -> String {
     let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut next = move |n: usize| {
         x ^= x << 13;

@@ -1,0 +1,19 @@
+//! flyd's pure core: everything that takes values and returns values.
+//!
+//! Camera geometry and calibration files, prepared frames, the Fly Algorithm engine, the
+//! CLEAR/SLOW/STOP decision and the CAN protocol (encoding, E2E protection, the DBC contract).
+//! No device, thread, socket or service manager: this crate's dependencies hold none (the
+//! runtime crate, `flyd`, brings them), so the engine and the decision are testable and
+//! reproducible without hardware. Time comes in as values or through an injected [`clock::Clock`].
+
+pub mod calib;
+pub mod can;
+pub mod clock;
+pub mod dataset;
+pub mod decision;
+pub mod engine;
+pub mod frame;
+pub mod geometry;
+pub mod isa;
+#[cfg(any(test, feature = "test-support"))]
+pub mod test_support;
