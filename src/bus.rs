@@ -11,7 +11,7 @@
 use std::collections::VecDeque;
 use std::io::{self, Write};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use flyd_core::can::bus::{BusError, CanBus, check_frame};
 use flyd_core::can::candump::{CAN_EFF_FLAG, CAN_EFF_MAX, format_candump_line};
@@ -40,19 +40,6 @@ fn from_errno(errno: i32, e: &io::Error) -> BusError {
             errno: Some(errno),
             message: e.to_string(),
         },
-    }
-}
-
-/// Wall-clock time since the Unix epoch, as candump logs carry (the daemon's production clock).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct SystemClock;
-
-impl Clock for SystemClock {
-    fn now(&self) -> Duration {
-        // A clock before 1970 is a misconfigured machine; 0 keeps the log well-formed.
-        SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .unwrap_or_default()
     }
 }
 
@@ -617,7 +604,7 @@ mod tests {
                 Ok(())
             }
         }
-        let mut bus = CandumpLogBus::new(Full, "vcan0", SystemClock);
+        let mut bus = CandumpLogBus::new(Full, "vcan0", crate::daemon::clock::SystemClock);
         let err = bus.send(0x120, &[]).expect_err("disk full");
         assert!(err.is_fatal(), "{err:?}");
     }
@@ -626,15 +613,15 @@ mod tests {
     /// parser and decoded, as a canplayer replay would deliver it.
     #[test]
     fn candump_log_from_transmitter_decodes_back() {
-        use flyd_core::can::messages::{
-            CanMessage, Command, CommandMsg, CommandReason, State, StatusMsg,
-        };
+        use flyd_core::can::messages::{CanMessage, CommandMsg, StatusMsg};
         use flyd_core::can::{CanConfig, Transmitter};
         use flyd_core::clock::ManualClock;
+        use flyd_core::decision::{Command, CommandReason};
+        use flyd_core::status::State;
 
         let status = StatusMsg {
             state: State::Running,
-            faults: flyd_core::can::messages::FaultBits::empty(),
+            faults: flyd_core::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,

@@ -20,10 +20,11 @@ use thiserror::Error;
 use crate::capture::CaptureFormat;
 use flyd_core::calib::{self, CalibError};
 use flyd_core::can::CanConfig;
-use flyd_core::can::messages::{Command, FaultBits};
+use flyd_core::decision::Command;
 use flyd_core::decision::{DecisionConfig, DecisionConfigError};
 use flyd_core::engine::{Engine, EngineError, EngineParams};
 use flyd_core::geometry::StereoRig;
+use flyd_core::status::FaultBits;
 
 /// Why a configuration cannot be used.
 #[derive(Debug, Error)]

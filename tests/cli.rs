@@ -7,7 +7,8 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use flyd_core::can::candump::parse_candump_line;
-use flyd_core::can::messages::{State, StatusMsg};
+use flyd_core::can::messages::StatusMsg;
+use flyd_core::status::State;
 
 fn flyd(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_flyd"))

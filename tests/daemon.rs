@@ -12,7 +12,8 @@ use std::time::Duration;
 use common::*;
 use flyd::daemon::EndReason;
 use flyd_core::can::bus::BusError;
-use flyd_core::can::messages::{Command, CommandReason, FaultBits, State};
+use flyd_core::decision::{Command, CommandReason};
+use flyd_core::status::{FaultBits, State};
 
 #[test]
 fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {

@@ -14,11 +14,10 @@ mod dbc_signals;
 use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
 use dbc_signals::{raw_value, value_table};
 use flyd_core::can::crc::e2e_crc;
-use flyd_core::can::messages::{
-    AliveCounter, CanMessage, Command, CommandMsg, CommandReason, FaultBits, ObstacleMsg, State,
-    StatusMsg,
-};
+use flyd_core::can::messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, MessageConfig};
+use flyd_core::decision::{Command, CommandReason};
+use flyd_core::status::{FaultBits, State};
 
 fn load() -> Dbc {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/flyd.dbc");

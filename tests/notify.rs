@@ -9,7 +9,7 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::*;
-use flyd_core::can::messages::{FaultBits, State};
+use flyd_core::status::{FaultBits, State};
 
 fn drain(socket: &UnixDatagram) -> Vec<String> {
     let mut out = Vec::new();

@@ -35,7 +35,7 @@ use std::time::Duration;
 
 use can_log::{Decoder, Frame};
 use flyd::mock::MockStereo;
-use flyd_core::can::messages::FaultBits;
+use flyd_core::status::FaultBits;
 use harness::{Run, Scenario, guest_tool};
 use hw_mock::Scenario as World;
 

@@ -22,7 +22,8 @@ use super::mock_camera::mock_cameras;
 use super::{DaemonError, Shutdown, run, spawn_named};
 use crate::bus::MemoryBus;
 use crate::config::{CameraSource, DaemonConfig};
-use flyd_core::can::messages::{CanMessage, Command, CommandMsg};
+use flyd_core::can::messages::{CanMessage, CommandMsg};
+use flyd_core::decision::Command;
 
 /// The demo configuration (config/demo.toml), which the benchmark runs by default.
 pub const DEMO_CONFIG: &str = include_str!("../../config/demo.toml");

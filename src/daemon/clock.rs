@@ -4,10 +4,10 @@
 //! timebase, since the control thread compares them (perception age, reaction time). V4L2 stamps
 //! buffers with CLOCK_MONOTONIC, so production uses [`MonotonicClock`]; tests pass a
 //! [`flyd_core::clock::ManualClock`] or the monotonic clock, and their sources stamp frames with
-//! the same clock.
+//! the same clock. CAN logs are stamped with the wall clock ([`SystemClock`]), as candump does.
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 pub use flyd_core::clock::Clock;
 
@@ -36,6 +36,19 @@ impl Clock for MonotonicClock {
 impl MonotonicClock {
     pub fn shared() -> SharedClock {
         Arc::new(MonotonicClock)
+    }
+}
+
+/// Wall-clock time since the Unix epoch, as candump logs carry (the daemon's production clock).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SystemClock;
+
+impl Clock for SystemClock {
+    fn now(&self) -> Duration {
+        // A clock before 1970 is a misconfigured machine; 0 keeps the log well-formed.
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap_or_default()
     }
 }
 

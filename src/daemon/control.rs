@@ -46,9 +46,11 @@ use super::snapshot::{ObstacleEstimate, Snapshot};
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
 use flyd_core::can::bus::{BusError, CanBus};
-use flyd_core::can::messages::{Command, FaultBits, State, StatusMsg};
+use flyd_core::can::messages::{CommandMsg, StatusMsg};
 use flyd_core::can::{CanConfig, Transmitter};
+use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::status::{FaultBits, State};
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
 const MAX_TURN: Duration = Duration::from_millis(5);
@@ -341,7 +343,7 @@ impl<B: CanBus> ControlThread<B> {
             );
         }
         s.command = decision.command;
-        let r = self.tx.send_command(&decision.command_msg(warning));
+        let r = self.tx.send_command(&CommandMsg::of(&decision, warning));
         if r.is_ok() && decision.command == Command::Stop && s.report.first_stop_at.is_none() {
             s.report.first_stop_at = Some(self.clock.now());
             s.report.first_stop_snapshot_at = s.latest.map(|l| l.taken_at);
@@ -449,7 +451,7 @@ impl<B: CanBus> ControlThread<B> {
         tracing::info!(command = %decision.command, "shutting down: last command and SHUTDOWN status");
         self.notifier.stopping("SHUTDOWN");
         let warning = s.latest.map_or(f64::NAN, |l| l.global_warning);
-        let r = self.tx.send_command(&decision.command_msg(warning));
+        let r = self.tx.send_command(&CommandMsg::of(&decision, warning));
         self.sent(s, r, "FLYD_Command");
         s.report.commands_sent += 1;
         s.report.last_command = Some(decision.command);

@@ -18,7 +18,7 @@
 
 use std::time::Duration;
 
-use flyd_core::can::messages::{FaultBits, State};
+use flyd_core::status::{FaultBits, State};
 
 /// What the control thread saw, at time `now`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -7,9 +7,10 @@ use std::path::Path;
 use super::DaemonError;
 use super::clock::SharedClock;
 use super::mock_camera::mock_cameras;
-use crate::bus::{CandumpLogBus, RetryPolicy, SocketCanBus, SystemClock};
+use crate::bus::{CandumpLogBus, RetryPolicy, SocketCanBus};
 use crate::capture::{V4l2Config, V4l2Source};
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
+use crate::daemon::clock::SystemClock;
 use crate::source::FrameSource;
 use flyd_core::can::bus::CanBus;
 

@@ -13,13 +13,13 @@ use flyd::bus::{MemoryBus, RecordedFrame};
 use flyd::config::DaemonConfig;
 use flyd::daemon::{self, MonotonicClock, RunReport, SharedClock, Shutdown};
 use flyd::source::{FrameMeta, FrameSource, SourceError};
-use flyd_core::can::messages::{
-    AliveCounter, CanMessage, Command, CommandMsg, CommandReason, ObstacleMsg, State, StatusMsg,
-};
+use flyd_core::can::messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::decision::DecisionConfig;
+use flyd_core::decision::{Command, CommandReason};
 use flyd_core::engine::EngineParams;
 use flyd_core::frame::{PixelFormat, PreparedImage};
 use flyd_core::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
+use flyd_core::status::State;
 use nalgebra::Point3;
 
 pub const W: u32 = 160;

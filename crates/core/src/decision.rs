@@ -31,7 +31,33 @@ use std::time::Duration;
 
 use thiserror::Error;
 
-use crate::can::messages::{Command, CommandMsg, CommandReason, FaultBits};
+use crate::status::FaultBits;
+
+named_enum! {
+    /// What the vehicle is asked to do. Ordered by severity: `Clear < Slow < Stop`, so
+    /// "the more cautious of two commands" is `max`.
+    pub enum Command {
+        /// No obstacle of concern: no request.
+        Clear = 0 => "CLEAR",
+        /// Slow down with the requested deceleration.
+        Slow = 1 => "SLOW",
+        /// Stop with the requested deceleration.
+        Stop = 2 => "STOP",
+    }
+}
+
+named_enum! {
+    /// Why the current command is what it is.
+    pub enum CommandReason {
+        /// The perception output (global warning) alone justifies the command.
+        Perception = 0 => "PERCEPTION",
+        /// Perception is not trusted (fault, invalid warning, not yet started), or the command is
+        /// still held from such a period: the command is the configured safe fallback or higher.
+        FaultFallback = 1 => "FAULT_FALLBACK",
+        /// flyd is shutting down; the command is the last one it will send.
+        Shutdown = 2 => "SHUTDOWN",
+    }
+}
 
 /// Tuning of the [`Decider`]. The defaults are placeholders until tuned on the vehicle: the
 /// warning scale depends on the perception settings.
@@ -155,18 +181,6 @@ pub struct Decision {
     /// Perception was untrusted for this snapshot (always `false` once shut down: the input
     /// is ignored then).
     pub fault: bool,
-}
-
-impl Decision {
-    /// The `FLYD_Command` frame content for this decision.
-    pub fn command_msg(&self, global_warning: f64) -> CommandMsg {
-        CommandMsg {
-            command: self.command,
-            requested_decel: self.requested_decel,
-            global_warning,
-            reason: self.reason,
-        }
-    }
 }
 
 /// The state machine; see the module docs for the rules.
@@ -674,22 +688,6 @@ mod tests {
         let mut decider = Decider::new(cfg()).expect("valid");
         decider.update(DecisionInput::healthy(0.9), Duration::ZERO);
         assert_eq!(decider.shutdown().command, Stop);
-    }
-
-    #[test]
-    fn command_msg_carries_the_decision() {
-        let mut decider = Decider::new(cfg()).expect("valid");
-        let d = decider.update(DecisionInput::healthy(0.9), Duration::ZERO);
-        let msg = d.command_msg(0.9);
-        assert_eq!(
-            (
-                msg.command,
-                msg.requested_decel,
-                msg.global_warning,
-                msg.reason
-            ),
-            (Stop, 4.0, 0.9, CommandReason::Perception)
-        );
     }
 
     #[test]

@@ -6,6 +6,9 @@
 //! runtime crate, `flyd`, brings them), so the engine and the decision are testable and
 //! reproducible without hardware. Time comes in as values or through an injected [`clock::Clock`].
 
+#[macro_use]
+mod macros;
+
 pub mod calib;
 pub mod can;
 pub mod clock;
@@ -15,5 +18,6 @@ pub mod engine;
 pub mod frame;
 pub mod geometry;
 pub mod isa;
+pub mod status;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;

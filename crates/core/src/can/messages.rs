@@ -60,13 +60,13 @@
 //! alive counter in 0..=14, enum signals in range, `Confidence` <= 100. The receiver-side counter
 //! check (repetition, loss) is the caller's business: it gets the counter back.
 
-use std::fmt;
-use std::ops::{BitAnd, BitAndAssign, BitOr, BitOrAssign, Not};
 use std::time::Duration;
 
 use thiserror::Error;
 
 use super::crc::e2e_crc;
+use crate::decision::{Command, CommandReason, Decision};
+use crate::status::{FaultBits, State};
 
 /// Every flyd frame is classic CAN with 8 data bytes.
 pub const FRAME_LEN: usize = 8;
@@ -140,247 +140,16 @@ impl AliveCounter {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
-// Enums
-
-macro_rules! can_enum {
-    (
-        $(#[$meta:meta])*
-        pub enum $name:ident : $signal:literal {
-            $( $(#[$vmeta:meta])* $variant:ident = $raw:literal => $label:literal, )+
-        }
-    ) => {
-        $(#[$meta])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-        #[repr(u8)]
-        pub enum $name {
-            $( $(#[$vmeta])* $variant = $raw, )+
-        }
-
-        impl $name {
-            /// Every value, in raw order.
-            pub const ALL: &'static [Self] = &[$(Self::$variant),+];
-
-            /// The raw value on the bus.
-            pub const fn raw(self) -> u8 {
-                self as u8
-            }
-
-            /// `None` for a raw value without a meaning.
-            pub const fn from_raw(raw: u8) -> Option<Self> {
-                match raw {
-                    $( $raw => Some(Self::$variant), )+
-                    _ => None,
-                }
-            }
-
-            /// The name used in the DBC value table (`VAL_`).
-            pub const fn name(self) -> &'static str {
-                match self {
-                    $( Self::$variant => $label, )+
-                }
-            }
-
-            fn decode_raw(raw: u64) -> Result<Self, DecodeError> {
-                u8::try_from(raw)
-                    .ok()
-                    .and_then(Self::from_raw)
-                    .ok_or(DecodeError::OutOfRange { signal: $signal, raw })
-            }
-        }
-
-        impl fmt::Display for $name {
-            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str(self.name())
-            }
-        }
-    };
-}
-
-can_enum! {
-    /// What the vehicle is asked to do. Ordered by severity: `Clear < Slow < Stop`, so
-    /// "the more cautious of two commands" is `max`.
-    pub enum Command: "Command" {
-        /// No obstacle of concern: no request.
-        Clear = 0 => "CLEAR",
-        /// Slow down with the requested deceleration.
-        Slow = 1 => "SLOW",
-        /// Stop with the requested deceleration.
-        Stop = 2 => "STOP",
-    }
-}
-
-can_enum! {
-    /// Why the current command is what it is.
-    pub enum CommandReason: "CommandReason" {
-        /// The perception output (global warning) alone justifies the command.
-        Perception = 0 => "PERCEPTION",
-        /// Perception is not trusted (fault, invalid warning, not yet started), or the command is
-        /// still held from such a period: the command is the configured safe fallback or higher.
-        FaultFallback = 1 => "FAULT_FALLBACK",
-        /// flyd is shutting down; the command is the last one it will send.
-        Shutdown = 2 => "SHUTDOWN",
-    }
-}
-
-can_enum! {
-    /// flyd's own state.
-    pub enum State: "State" {
-        Init = 0 => "INIT",
-        Running = 1 => "RUNNING",
-        /// Running with at least one fault bit set; commands fall back to the safe command.
-        Degraded = 2 => "DEGRADED",
-        /// Cannot produce perception at all.
-        Fault = 3 => "FAULT",
-        Shutdown = 4 => "SHUTDOWN",
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Fault bits
-
-/// The `FaultBits` signal: one bit per fault, any combination (bitflags-like newtype; all 8 bits
-/// are defined, so every `u8` is a valid value).
-#[derive(Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub struct FaultBits(u8);
-
-impl FaultBits {
-    /// bit 0: no fresh frame from the left camera.
-    pub const LEFT_CAMERA_STALE: Self = Self(1 << 0);
-    /// bit 1: no fresh frame from the right camera.
-    pub const RIGHT_CAMERA_STALE: Self = Self(1 << 1);
-    /// bit 2: left and right frames too far apart in time to be a stereo pair.
-    pub const STEREO_SKEW: Self = Self(1 << 2);
-    /// bit 3: the evolution cannot keep its generation rate.
-    pub const EVOLUTION_OVERRUN: Self = Self(1 << 3);
-    /// bit 4: the newest perception snapshot is too old.
-    pub const SNAPSHOT_STALE: Self = Self(1 << 4);
-    /// bit 5: a camera reports a wrong format or a device error, or the stereo pair matches
-    /// nowhere (perception blind: a camera delivering noise or covered).
-    pub const CAMERA_ERROR: Self = Self(1 << 5);
-    /// bit 6: CAN transmission errors.
-    pub const CAN_TX_ERROR: Self = Self(1 << 6);
-    /// bit 7: configuration or internal error.
-    pub const INTERNAL: Self = Self(1 << 7);
-
-    const NAMED: [(Self, &'static str); 8] = [
-        (Self::LEFT_CAMERA_STALE, "LEFT_CAMERA_STALE"),
-        (Self::RIGHT_CAMERA_STALE, "RIGHT_CAMERA_STALE"),
-        (Self::STEREO_SKEW, "STEREO_SKEW"),
-        (Self::EVOLUTION_OVERRUN, "EVOLUTION_OVERRUN"),
-        (Self::SNAPSHOT_STALE, "SNAPSHOT_STALE"),
-        (Self::CAMERA_ERROR, "CAMERA_ERROR"),
-        (Self::CAN_TX_ERROR, "CAN_TX_ERROR"),
-        (Self::INTERNAL, "INTERNAL"),
-    ];
-
-    pub const fn empty() -> Self {
-        Self(0)
-    }
-
-    pub const fn all() -> Self {
-        Self(0xFF)
-    }
-
-    pub const fn from_bits(bits: u8) -> Self {
-        Self(bits)
-    }
-
-    pub const fn bits(self) -> u8 {
-        self.0
-    }
-
-    pub const fn is_empty(self) -> bool {
-        self.0 == 0
-    }
-
-    /// All bits of `other` are set in `self`.
-    pub const fn contains(self, other: Self) -> bool {
-        self.0 & other.0 == other.0
-    }
-
-    /// At least one bit of `other` is set in `self`.
-    pub const fn intersects(self, other: Self) -> bool {
-        self.0 & other.0 != 0
-    }
-
-    pub fn insert(&mut self, other: Self) {
-        self.0 |= other.0;
-    }
-
-    pub fn remove(&mut self, other: Self) {
-        self.0 &= !other.0;
-    }
-
-    pub fn set(&mut self, other: Self, on: bool) {
-        if on {
-            self.insert(other);
-        } else {
-            self.remove(other);
-        }
-    }
-
-    /// Names of the set bits, bit 0 first.
-    pub fn names(self) -> impl Iterator<Item = &'static str> {
-        Self::NAMED
-            .into_iter()
-            .filter(move |(flag, _)| self.contains(*flag))
-            .map(|(_, name)| name)
-    }
-}
-
-impl BitOr for FaultBits {
-    type Output = Self;
-    fn bitor(self, rhs: Self) -> Self {
-        Self(self.0 | rhs.0)
-    }
-}
-
-impl BitOrAssign for FaultBits {
-    fn bitor_assign(&mut self, rhs: Self) {
-        self.0 |= rhs.0;
-    }
-}
-
-impl BitAnd for FaultBits {
-    type Output = Self;
-    fn bitand(self, rhs: Self) -> Self {
-        Self(self.0 & rhs.0)
-    }
-}
-
-impl BitAndAssign for FaultBits {
-    fn bitand_assign(&mut self, rhs: Self) {
-        self.0 &= rhs.0;
-    }
-}
-
-impl Not for FaultBits {
-    type Output = Self;
-    fn not(self) -> Self {
-        Self(!self.0)
-    }
-}
-
-impl fmt::Display for FaultBits {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.is_empty() {
-            return f.write_str("none");
-        }
-        for (i, name) in self.names().enumerate() {
-            if i > 0 {
-                f.write_str("|")?;
-            }
-            f.write_str(name)?;
-        }
-        Ok(())
-    }
-}
-
-impl fmt::Debug for FaultBits {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "FaultBits({self})")
-    }
+/// An enum signal's raw value as `T`, or [`DecodeError::OutOfRange`] naming the signal.
+fn decode_enum<T>(
+    raw: u64,
+    signal: &'static str,
+    from_raw: fn(u8) -> Option<T>,
+) -> Result<T, DecodeError> {
+    u8::try_from(raw)
+        .ok()
+        .and_then(from_raw)
+        .ok_or(DecodeError::OutOfRange { signal, raw })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -594,6 +363,16 @@ pub struct CommandMsg {
 }
 
 impl CommandMsg {
+    /// The frame content for `decision`, decided on `global_warning`.
+    pub fn of(decision: &Decision, global_warning: f64) -> Self {
+        Self {
+            command: decision.command,
+            requested_decel: decision.requested_decel,
+            global_warning,
+            reason: decision.reason,
+        }
+    }
+
     /// Largest `GlobalWarning` that can be sent; larger values saturate to it.
     pub const GLOBAL_WARNING_MAX: f64 = 65.534;
     /// Raw `GlobalWarning` meaning "invalid" (NaN).
@@ -638,10 +417,10 @@ impl CanMessage for CommandMsg {
             warning_raw as f64 / WARNING_PER_UNIT
         };
         let msg = Self {
-            command: Command::decode_raw(COMMAND.get(w))?,
+            command: decode_enum(COMMAND.get(w), "Command", Command::from_raw)?,
             requested_decel: DECEL.get(w) as f64 / DECEL_PER_UNIT,
             global_warning,
-            reason: CommandReason::decode_raw(REASON.get(w))?,
+            reason: decode_enum(REASON.get(w), "CommandReason", CommandReason::from_raw)?,
         };
         Ok((msg, counter))
     }
@@ -706,7 +485,7 @@ impl CanMessage for StatusMsg {
         use layout::status::*;
         let (w, counter) = unseal(data, data_id)?;
         let msg = Self {
-            state: State::decode_raw(STATE.get(w))?,
+            state: decode_enum(STATE.get(w), "State", State::from_raw)?,
             faults: FaultBits::from_bits(FAULTS.get(w) as u8),
             perception_age: Duration::from_millis(AGE_MS.get(w)),
             generations_per_sec: GENERATIONS.get(w) as f64 / GENERATIONS_PER_UNIT,
@@ -794,6 +573,23 @@ default_codec!(ObstacleMsg);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn command_msg_carries_the_decision() {
+        use crate::decision::{Decider, DecisionConfig, DecisionInput};
+        let mut decider = Decider::new(DecisionConfig::default()).expect("valid");
+        let d = decider.update(DecisionInput::healthy(9.0), Duration::ZERO);
+        let msg = CommandMsg::of(&d, 9.0);
+        assert_eq!(
+            (
+                msg.command,
+                msg.requested_decel,
+                msg.global_warning,
+                msg.reason
+            ),
+            (Command::Stop, 4.0, 9.0, CommandReason::Perception)
+        );
+    }
     use crate::can::crc::crc8_j1850;
 
     fn c(v: u8) -> AliveCounter {

@@ -199,8 +199,8 @@ impl<B: CanBus> Transmitter<B> {
 
 #[cfg(test)]
 mod tests {
-    use super::messages::{Command, CommandReason};
     use super::*;
+    use crate::decision::{Command, CommandReason};
     use std::sync::{Arc, Mutex};
 
     /// A frame the [`Recorder`] accepted.
@@ -371,8 +371,8 @@ mod tests {
 
     fn status() -> StatusMsg {
         StatusMsg {
-            state: messages::State::Running,
-            faults: messages::FaultBits::empty(),
+            state: crate::status::State::Running,
+            faults: crate::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,
