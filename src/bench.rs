@@ -107,7 +107,7 @@ pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
     };
     let mut engine = Engine::new(mock.rig(), params)?;
     if let Some(isa) = cfg.isa {
-        engine.set_isa(isa)?;
+        engine.set_isa(isa);
     }
     let k = cfg.generations_per_frame.max(1);
     let warmup = 50;

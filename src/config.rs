@@ -360,8 +360,6 @@ pub fn check(path: &Path) -> Result<DaemonConfig, ConfigError> {
             EngineError::Param(p) => format!("engine.{}", p.key),
             EngineError::NoCommonView { .. } => "engine.max_depth".into(),
             EngineError::NotInvertible | EngineError::FrameSize { .. } => "calibration".into(),
-            // Not raised by Engine::new (only by Engine::set_isa).
-            EngineError::UnsupportedIsa(_) => "engine".into(),
         };
         ConfigError::Invalid {
             file: path.to_path_buf(),

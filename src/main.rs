@@ -266,7 +266,7 @@ fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
 }
 
 fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {
-    flyd_core::isa::Isa::available_by_name(name).ok_or_else(|| {
+    flyd_core::isa::Isa::by_name(name).ok_or_else(|| {
         let names: Vec<&str> = flyd_core::isa::Isa::available()
             .iter()
             .map(|i| i.name())

@@ -12,7 +12,7 @@
 //! Preparation never allocates once the image exists ([`PreparedImage::prepare_rgb`] refills in
 //! place); a frame of the wrong size is an error, not a panic.
 
-use crate::isa::Isa;
+use crate::isa::{Isa, Level, dispatch};
 
 /// Border, in pixels, around the image (>= the largest neighbourhood radius plus the kernel's
 /// over-read).
@@ -107,6 +107,11 @@ pub enum FrameError {
     },
     #[error("image {width}x{height} is too small or too large")]
     BadDimensions { width: u32, height: u32 },
+}
+
+dispatch! {
+    fn prepare_on(image: &mut PreparedImage, format: PixelFormat, pixels: &[u8]);
+    up to Avx2 => PreparedImage::prepare_at
 }
 
 /// An image ready for fitness evaluation (see the module docs for the layout).
@@ -229,22 +234,16 @@ impl PreparedImage {
         Ok(())
     }
 
-    /// [`Self::prepare`]'s work on a chosen instruction set (all give the same bytes).
+    /// [`Self::prepare`]'s work on a chosen instruction set (all give the same bytes): with
+    /// AVX2 the compiler vectorises its loops 32 bytes wide and can shuffle the 3-byte pixels
+    /// into the 4-byte layout.
     fn prepare_on(&mut self, isa: Isa, format: PixelFormat, pixels: &[u8]) {
-        match isa {
-            Isa::Baseline => self.prepare_with(format, pixels),
-            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 | Isa::Avx512 => unsafe { self.prepare_avx2(format, pixels) },
-        }
+        prepare_on(isa, self, format, pixels);
     }
 
-    /// The preparation compiled with AVX2 enabled: the compiler vectorises its loops 32 bytes
-    /// wide and can shuffle the 3-byte pixels into the 4-byte layout.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn prepare_avx2(&mut self, format: PixelFormat, pixels: &[u8]) {
-        self.prepare_with(format, pixels)
+    #[inline(always)]
+    fn prepare_at(_: Level, image: &mut Self, format: PixelFormat, pixels: &[u8]) {
+        image.prepare_with(format, pixels);
     }
 
     /// Colour normalisation, luma, Sobel, border and block means. `pixels` has the right size.
@@ -557,7 +556,7 @@ mod tests {
     #[test]
     fn every_instruction_set_prepares_the_same_bytes() {
         let detected = Isa::detect();
-        if detected == Isa::Baseline {
+        if detected == Isa::BASELINE {
             println!("SKIP every_instruction_set_prepares_the_same_bytes: only the baseline here");
             return;
         }
@@ -577,7 +576,7 @@ mod tests {
                 PreparedImage::new(w, h).unwrap(),
                 PreparedImage::new(w, h).unwrap(),
             );
-            a.prepare_on(Isa::Baseline, format, &px);
+            a.prepare_on(Isa::BASELINE, format, &px);
             b.prepare_on(detected, format, &px);
             assert!(a.data == b.data, "{format:?}: prepared bytes differ");
             assert_eq!(a.block_means, b.block_means);

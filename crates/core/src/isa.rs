@@ -4,31 +4,44 @@
 //! The hottest loops (fitness evaluation, frame preparation, the immigrants' projection, the
 //! warnings, and the selection, operators, mate index and sharing) are also compiled with AVX2,
 //! some with AVX-512 too (one 32-byte window row a vector, compressed index lists), and the
-//! CPU chooses at start. Every path gives
-//! bit-identical results (integer arithmetic, the same f32 operations in the same order; Rust
-//! never fuses a multiply and an add on its own): the choice changes speed, never a fitness, a
-//! fly or a frame. Tests compare the paths.
+//! CPU chooses at start. Every path gives bit-identical results (integer arithmetic, the same
+//! f32 operations in the same order; Rust never fuses a multiply and an add on its own): the
+//! choice changes speed, never a fitness, a fly or a frame. Tests compare the paths.
+//!
+//! # One token, one dispatch
+//! An [`Isa`] is a proof: only detection ([`Isa::detect`], [`Isa::available`]) creates one
+//! above the baseline, so code that holds an `Isa` may run its [`Level`]'s instructions.
+//! `dispatch!` is the one mechanism that turns the proof into code compiled for the level: it
+//! defines, for a loop written once as an `#[inline(always)]` body, a `#[target_feature]`
+//! function per level and the `match` that picks one. The body gets the level as a constant,
+//! so a `match` on it picks a level-specific kernel (intrinsics) at compile time; calling such
+//! a kernel is sound because the body runs at that level only inside that level's function.
 
-/// An instruction set a hot loop can run on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Isa {
+/// An instruction-set level: a name, which proves nothing (an [`Isa`] does).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Level {
     /// SSE2 (the x86-64 baseline) or portable code.
     Baseline,
     /// AVX2 with BMI1/BMI2 (x86-64-v3 CPUs: Intel since 2013, AMD since 2015).
-    #[cfg(target_arch = "x86_64")]
     Avx2,
     /// AVX-512 F/BW/VL on top of AVX2 (x86-64-v4: Intel server CPUs since 2017, AMD since Zen 4).
     /// The window kernel, the index lists (compress) and the mate index's scan have 512-bit
-    /// code; the selection, evaluation and sharing are compiled for it; the rest run their AVX2
-    /// code.
-    #[cfg(target_arch = "x86_64")]
+    /// code; the selection, evaluation, mutation, mate index and sharing are compiled for it;
+    /// the rest run their AVX2 code ([`Isa::at_most`]).
     Avx512,
 }
 
+/// Proof that this CPU runs [`Isa::level`]'s instructions (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Isa(Level);
+
 impl Isa {
+    /// The baseline, which every CPU of the target runs.
+    pub const BASELINE: Isa = Isa(Level::Baseline);
+
     /// The best instruction set this CPU has (std caches the CPUID query).
     pub fn detect() -> Self {
-        Self::available().last().copied().unwrap_or(Isa::Baseline)
+        Self::available().last().copied().unwrap_or(Self::BASELINE)
     }
 
     /// Every instruction set this CPU has, baseline first, best last (what the tests compare).
@@ -39,28 +52,140 @@ impl Isa {
             // x86-64-v3's AVX2 with its bit-manipulation companions (every AVX2 CPU has them).
             let v3 = has!("avx2") && has!("bmi1") && has!("bmi2");
             if v3 && has!("avx512f") && has!("avx512bw") && has!("avx512vl") {
-                return &[Isa::Baseline, Isa::Avx2, Isa::Avx512];
+                return &[Isa::BASELINE, Isa(Level::Avx2), Isa(Level::Avx512)];
             }
             if v3 {
-                return &[Isa::Baseline, Isa::Avx2];
+                return &[Isa::BASELINE, Isa(Level::Avx2)];
             }
         }
-        &[Isa::Baseline]
+        &[Isa::BASELINE]
+    }
+
+    pub fn level(self) -> Level {
+        self.0
     }
 
     /// The name `flyd bench --isa` takes.
     pub fn name(self) -> &'static str {
-        match self {
-            Isa::Baseline => "baseline",
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => "avx2",
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => "avx512",
+        match self.0 {
+            Level::Baseline => "baseline",
+            Level::Avx2 => "avx2",
+            Level::Avx512 => "avx512",
         }
     }
 
     /// The instruction set named `name`, if this CPU has it.
-    pub fn available_by_name(name: &str) -> Option<Isa> {
+    pub fn by_name(name: &str) -> Option<Isa> {
         Self::available().iter().copied().find(|i| i.name() == name)
+    }
+
+    /// This instruction set, or `cap` if that is lower: for loops with no code above `cap`
+    /// (a CPU that runs a level runs every level below it).
+    #[inline(always)]
+    pub fn at_most(self, cap: Level) -> Isa {
+        Isa(self.0.min(cap))
+    }
+}
+
+/// Defines a function that runs an `#[inline(always)]` body compiled for an [`Isa`]'s level.
+///
+/// ```text
+/// dispatch! {
+///     /// Docs of the dispatcher.
+///     pub(crate) fn apply_on(grid: &mut Grid, pop: &mut Population);
+///     up to Avx512 => Grid::apply_at
+/// }
+/// ```
+///
+/// defines `apply_on(isa: Isa, grid, pop)`, which calls `Grid::apply_at(level, grid, pop)`
+/// inside a `#[target_feature]` function of `isa`'s level (capped at the level named after
+/// `up to`: `Avx2` for loops that have no AVX-512 code), or directly on the baseline. The body
+/// takes the level first; it is a constant in each copy, so a `match` on it picks a
+/// level-specific kernel at compile time. Generic parameters go in brackets after the name
+/// (`fn compare[const W: usize](...)`).
+///
+/// The per-level functions take the arguments as their own parameters (a closure capturing
+/// them would hide from the optimiser that the references do not alias: measured, the
+/// evaluation's first pass stopped vectorising) and are never inlined, so a dispatched loop
+/// stays a function of its own even when dispatched from inside another one (the window pass,
+/// inlined into the whole evaluation, lost half its registers to the stack).
+macro_rules! dispatch {
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])? ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;
+        up to Avx512 => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name $(<$($gen)*>)? (isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
+            /// # Safety
+            /// The CPU must have AVX2, BMI1 and BMI2.
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,bmi1,bmi2")]
+            #[inline(never)]
+            unsafe fn avx2 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
+                $body($crate::isa::Level::Avx2, $($arg),*)
+            }
+            /// # Safety
+            /// The CPU must have AVX2, BMI1, BMI2 and AVX-512 F/BW/VL.
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
+            #[inline(never)]
+            unsafe fn avx512 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
+                $body($crate::isa::Level::Avx512, $($arg),*)
+            }
+            match isa.level() {
+                // SAFETY: an `Isa` at this level proves the CPU has its features (`isa.rs`).
+                #[cfg(target_arch = "x86_64")]
+                $crate::isa::Level::Avx512 => unsafe { avx512($($arg),*) },
+                // SAFETY: as above.
+                #[cfg(target_arch = "x86_64")]
+                $crate::isa::Level::Avx2 => unsafe { avx2($($arg),*) },
+                _ => $body($crate::isa::Level::Baseline, $($arg),*),
+            }
+        }
+    };
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])? ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;
+        up to Avx2 => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name $(<$($gen)*>)? (isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
+            /// # Safety
+            /// The CPU must have AVX2, BMI1 and BMI2.
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,bmi1,bmi2")]
+            #[inline(never)]
+            unsafe fn avx2 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
+                $body($crate::isa::Level::Avx2, $($arg),*)
+            }
+            match isa.level() {
+                // SAFETY: an `Isa` at AVX2 or above proves the CPU has AVX2, BMI1 and BMI2.
+                #[cfg(target_arch = "x86_64")]
+                $crate::isa::Level::Avx2 | $crate::isa::Level::Avx512 => unsafe {
+                    avx2($($arg),*)
+                },
+                _ => $body($crate::isa::Level::Baseline, $($arg),*),
+            }
+        }
+    };
+}
+pub(crate) use dispatch;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn levels_are_ordered_and_capped() {
+        let best = Isa::detect();
+        assert_eq!(Isa::available().last(), Some(&best));
+        assert_eq!(Isa::available()[0], Isa::BASELINE);
+        assert!(best.at_most(Level::Avx2).level() <= Level::Avx2);
+        assert_eq!(best.at_most(Level::Baseline), Isa::BASELINE);
+        for isa in Isa::available() {
+            assert_eq!(Isa::by_name(isa.name()), Some(*isa));
+        }
+        assert_eq!(Isa::by_name("avx1024"), None);
     }
 }

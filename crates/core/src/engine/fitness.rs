@@ -30,7 +30,7 @@ use super::params::{EngineParams, RoadRoi};
 use super::projector::Projector;
 use super::sharing::Grid;
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
-pub(crate) use crate::isa::Isa;
+use crate::isa::{Isa, Level, dispatch};
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
@@ -144,49 +144,26 @@ impl<'a> Kernel<'a> {
         grid: &Grid,
         scratch: &mut Scratch,
     ) -> Matches {
-        match self.isa {
-            Isa::Baseline => self.evaluate_on(left, right, pop, range, grid, scratch),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.evaluate_avx2(left, right, pop, range, grid, scratch) },
-            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { self.evaluate_avx512(left, right, pop, range, grid, scratch) },
-        }
-    }
-
-    /// The evaluation compiled with AVX-512 enabled (a window row in one 512-bit vector).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
-    unsafe fn evaluate_avx512(
-        &self,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
-    ) -> Matches {
-        self.evaluate_on(left, right, pop, range, grid, scratch)
-    }
-
-    /// The evaluation compiled with AVX2 enabled (projection, scalar code and SSD alike).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn evaluate_avx2(
-        &self,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
-    ) -> Matches {
-        self.evaluate_on(left, right, pop, range, grid, scratch)
+        evaluate_on(self.isa, self, left, right, pop, range, grid, scratch)
     }
 
     #[inline(always)]
-    fn evaluate_on(
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate_at(
+        _: Level,
+        kernel: &Self,
+        left: &Projector,
+        right: &Projector,
+        pop: &mut Population,
+        range: Range<usize>,
+        grid: &Grid,
+        scratch: &mut Scratch,
+    ) -> Matches {
+        kernel.evaluate_all(left, right, pop, range, grid, scratch)
+    }
+
+    #[inline(always)]
+    fn evaluate_all(
         &self,
         left: &Projector,
         right: &Projector,
@@ -310,6 +287,32 @@ impl<'a> Kernel<'a> {
     }
 }
 
+dispatch! {
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate_on(
+        kernel: &Kernel<'_>,
+        left: &Projector,
+        right: &Projector,
+        pop: &mut Population,
+        range: Range<usize>,
+        grid: &Grid,
+        scratch: &mut Scratch,
+    ) -> Matches;
+    up to Avx512 => Kernel::evaluate_at
+}
+
+dispatch! {
+    fn compare_on[const W: usize](
+        windows: &Windows<'_, W>,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    );
+    up to Avx512 => Windows::compare_at
+}
+
 /// The window comparison of one evaluation (its pass 2): for each fly, the product of the
 /// gradient bytes at the two windows' centres and the SSD of the windows.
 #[derive(Clone, Copy)]
@@ -336,43 +339,26 @@ impl<const W: usize> Windows<'_, W> {
         grads: &mut [i32],
         ssds: &mut [i32],
     ) {
-        match isa {
-            Isa::Baseline => self.unrolled::<BASE>(lo, ro, ts, grads, ssds),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
+        compare_on(isa, self, lo, ro, ts, grads, ssds);
+    }
+
+    #[inline(always)]
+    fn compare_at(
+        level: Level,
+        windows: &Self,
+        lo: &[u32],
+        ro: &[u32],
+        ts: &[u16],
+        grads: &mut [i32],
+        ssds: &mut [i32],
+    ) {
+        match level {
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.compare_avx2(lo, ro, ts, grads, ssds) },
-            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
+            Level::Avx512 => windows.unrolled::<AVX512>(lo, ro, ts, grads, ssds),
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { self.compare_avx512(lo, ro, ts, grads, ssds) },
+            Level::Avx2 => windows.unrolled::<AVX2>(lo, ro, ts, grads, ssds),
+            _ => windows.unrolled::<BASE>(lo, ro, ts, grads, ssds),
         }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
-    #[inline(never)]
-    unsafe fn compare_avx512(
-        &self,
-        lo: &[u32],
-        ro: &[u32],
-        ts: &[u16],
-        grads: &mut [i32],
-        ssds: &mut [i32],
-    ) {
-        self.unrolled::<AVX512>(lo, ro, ts, grads, ssds);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[inline(never)]
-    unsafe fn compare_avx2(
-        &self,
-        lo: &[u32],
-        ro: &[u32],
-        ts: &[u16],
-        grads: &mut [i32],
-        ssds: &mut [i32],
-    ) {
-        self.unrolled::<AVX2>(lo, ro, ts, grads, ssds);
     }
 
     /// The default neighbourhood's three compared rows get an instantiation of their own
@@ -445,9 +431,8 @@ impl<const W: usize> Windows<'_, W> {
                 (r, ts[i])
             };
             let ssd = match () {
-                // SAFETY: SIMD is AVX512 only inside `compare_avx512`, entered after
-                // detection; the windows lie inside the buffers (checked above against
-                // `lneed`, `rneed`).
+                // SAFETY: SIMD is AVX512 only in `compare_on`'s AVX-512 function; the windows
+                // lie inside the buffers (checked above against `lneed`, `rneed`).
                 #[cfg(target_arch = "x86_64")]
                 () if SIMD == AVX512 => unsafe {
                     avx512::ssd::<W>(
@@ -461,7 +446,7 @@ impl<const W: usize> Windows<'_, W> {
                         t,
                     )
                 },
-                // SAFETY: as above, inside `compare_avx2`.
+                // SAFETY: as above, for AVX2.
                 #[cfg(target_arch = "x86_64")]
                 () if SIMD == AVX2 => unsafe {
                     avx2::ssd::<W>(
@@ -846,17 +831,14 @@ mod tests {
         assert!(lo + (rows - 1) * ls + W <= l.len() && ro + (rows - 1) * rs + W + BPP <= r.len());
         let m16 = mask16::<W>(radius, channels);
         let (lp, rp) = (l[lo..].as_ptr(), r[ro..].as_ptr());
-        // SAFETY: `isa` is one of `Isa::available()` (the callers' loops), and the windows were
-        // checked to lie inside the buffers just above.
-        unsafe {
-            match isa {
-                Isa::Baseline => panic!("not a SIMD kernel"),
-                Isa::Avx2 => avx2::ssd::<W>(lp, ls, rp, rs, rows, &m16, t),
-                Isa::Avx512 => {
-                    let bits = mask_bits::<W>(radius, channels);
-                    avx512::ssd::<W>(lp, ls, rp, rs, rows, &m16, bits, t)
-                }
-            }
+        let bits = mask_bits::<W>(radius, channels);
+        match isa.level() {
+            Level::Baseline => panic!("not a SIMD kernel"),
+            // SAFETY: `isa` proves the CPU has AVX2, and the windows were checked to lie
+            // inside the buffers just above.
+            Level::Avx2 => unsafe { avx2::ssd::<W>(lp, ls, rp, rs, rows, &m16, t) },
+            // SAFETY: as above, with AVX-512.
+            Level::Avx512 => unsafe { avx512::ssd::<W>(lp, ls, rp, rs, rows, &m16, bits, t) },
         }
     }
 

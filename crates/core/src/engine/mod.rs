@@ -60,7 +60,8 @@ pub use params::{EngineParams, ParamError, RoadRoi};
 
 use crate::frame::{BLOCK, StereoFrame};
 use crate::geometry::StereoRig;
-use fitness::{Isa, Kernel};
+use crate::isa::{Isa, Level, dispatch};
+use fitness::Kernel;
 use phase::Phase;
 use projector::Projector;
 use rand::rngs::Xoshiro256PlusPlus;
@@ -77,8 +78,6 @@ pub enum EngineError {
     NoCommonView { min: f64, max: f64 },
     #[error("the left camera's model cannot be inverted at the image border")]
     NotInvertible,
-    #[error("this CPU has no {0} instruction set")]
-    UnsupportedIsa(&'static str),
     #[error("frame {which} is {got_w}x{got_h} but the calibration expects {want_w}x{want_h}")]
     FrameSize {
         which: &'static str,
@@ -168,18 +167,12 @@ impl Population {
     /// [`Population::project`] on instruction set `isa` (the same bits on each; AVX2 projects
     /// 8 flies at a time instead of 4).
     fn project_on(&mut self, isa: Isa, left: &Projector, right: &Projector, r: Range<usize>) {
-        match isa {
-            Isa::Baseline => self.project(left, right, r),
-            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 | Isa::Avx512 => unsafe { self.project_avx2(left, right, r) },
-        }
+        project_on(isa, self, left, right, r);
     }
 
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn project_avx2(&mut self, left: &Projector, right: &Projector, r: Range<usize>) {
-        self.project(left, right, r);
+    #[inline(always)]
+    fn project_at(_: Level, pop: &mut Self, left: &Projector, right: &Projector, r: Range<usize>) {
+        pop.project(left, right, r);
     }
 
     /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).
@@ -412,13 +405,9 @@ impl Engine {
     }
 
     /// Runs the hot loops on `isa` instead (for benchmarks: every instruction set gives the
-    /// same population). Fails if this CPU lacks it.
-    pub fn set_isa(&mut self, isa: Isa) -> Result<(), EngineError> {
-        if !Isa::available().contains(&isa) {
-            return Err(EngineError::UnsupportedIsa(isa.name()));
-        }
+    /// same population; an [`Isa`] is always one this CPU has).
+    pub fn set_isa(&mut self, isa: Isa) {
         self.isa = isa;
-        Ok(())
     }
 
     /// Runs one generation against `frame` (see the module docs for the steps).
@@ -507,12 +496,7 @@ impl Engine {
             self.params.warning_min_abs_x as f32,
             self.params.warning_min_z as f32,
         );
-        match self.isa {
-            Isa::Baseline => warnings(&mut self.pop, min_x, min_z),
-            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 | Isa::Avx512 => unsafe { warnings_avx2(&mut self.pop, min_x, min_z) },
-        }
+        warnings_on(self.isa, &mut self.pop, min_x, min_z)
     }
 
     /// Re-evaluates, before selection, the flies whose left projection lies where the image
@@ -856,9 +840,20 @@ impl Engine {
     }
 }
 
+dispatch! {
+    /// [`warnings`] on instruction set `isa` (AVX2: 8 divisions at a time; the same bits).
+    fn warnings_on(p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize);
+    up to Avx2 => warnings
+}
+
+dispatch! {
+    fn project_on(pop: &mut Population, left: &Projector, right: &Projector, r: Range<usize>);
+    up to Avx2 => Population::project_at
+}
+
 /// The body of [`Engine::warnings`]: the warning of every fly of `p` and the sums.
 #[inline(always)]
-fn warnings(p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize) {
+fn warnings(_: Level, p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize) {
     // The fly's own evidence (after the region of interest, before sharing): sharing is a
     // device of selection, and must not make an obstacle look less dangerous because many
     // flies found it.
@@ -893,16 +888,6 @@ fn warnings(p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize
     (sum_w / n, danger, sum_f / n, visible)
 }
 
-/// [`warnings`] compiled with AVX2 (8 divisions at a time; the same bits).
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn warnings_avx2(p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize) {
-    warnings(p, min_x, min_z)
-}
-
 /// What the offspring loop reads besides the parents' coordinates.
 struct Breeding<'a> {
     /// `bits < guided`: the first parent comes from the breeders (a tournament among them).
@@ -918,48 +903,18 @@ struct Breeding<'a> {
     cell: &'a [u32],
 }
 
-/// [`breed_with`] compiled for instruction set `isa` (the same offspring on each: integer and
-/// f32 arithmetic only; AVX2 brings BMI2's shifts and rotations for the generator, and wider
-/// registers).
-fn breed(
-    isa: Isa,
-    b: &Breeding,
-    coords: [&mut [f32]; 3],
-    children: Range<usize>,
-    masks: &mut [u64],
-    generator: &mut Xoshiro256PlusPlus,
-) {
-    match isa {
-        Isa::Baseline => breed_baseline(b, coords, children, masks, generator),
-        // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2, BMI1 and BMI2
-        // were detected.
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 | Isa::Avx512 => unsafe { breed_avx2(b, coords, children, masks, generator) },
-    }
-}
-
-#[inline(never)]
-fn breed_baseline(
-    b: &Breeding,
-    coords: [&mut [f32]; 3],
-    children: Range<usize>,
-    masks: &mut [u64],
-    generator: &mut Xoshiro256PlusPlus,
-) {
-    breed_with(b, coords, children, masks, generator);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,bmi2")]
-#[inline(never)]
-unsafe fn breed_avx2(
-    b: &Breeding,
-    coords: [&mut [f32]; 3],
-    children: Range<usize>,
-    masks: &mut [u64],
-    generator: &mut Xoshiro256PlusPlus,
-) {
-    breed_with(b, coords, children, masks, generator);
+dispatch! {
+    /// [`breed_with`] compiled for instruction set `isa` (the same offspring on each: integer
+    /// and f32 arithmetic only; AVX2 brings BMI2's shifts and rotations for the generator, and
+    /// wider registers).
+    fn breed(
+        b: &Breeding,
+        coords: [&mut [f32]; 3],
+        children: Range<usize>,
+        masks: &mut [u64],
+        generator: &mut Xoshiro256PlusPlus,
+    );
+    up to Avx2 => breed_with
 }
 
 /// Writes one crossover offspring into each fly of `children` (of the coordinates `[x, y, z]`)
@@ -969,6 +924,7 @@ unsafe fn breed_avx2(
 /// are read and written through one slice a coordinate, which keeps three pointers fewer.
 #[inline(always)]
 fn breed_with(
+    _: Level,
     b: &Breeding,
     coords: [&mut [f32]; 3],
     children: Range<usize>,
@@ -1054,31 +1010,23 @@ pub fn crossover(a: [f32; 3], b: [f32; 3], l: f32) -> [f32; 3] {
     ]
 }
 
-/// [`mutate`] compiled for instruction set `isa` (the same flies on each, as for [`breed`]).
-fn mutate_on(
-    isa: Isa,
-    coords: [&mut [f32]; 3],
-    masks: &[u64],
-    hits: &mut [u32],
-    generator: &mut Xoshiro256PlusPlus,
-    threshold: u32,
-    sigma: f32,
-) {
-    match isa {
-        Isa::Baseline => mutate(coords, masks, hits, generator, threshold, sigma),
-        // SAFETY: as in `breed`.
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { mutate_avx2(coords, masks, hits, generator, threshold, sigma) },
-        // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL (and AVX2, BMI1, BMI2)
-        // were detected.
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { mutate_avx512(coords, masks, hits, generator, threshold, sigma) },
-    }
+dispatch! {
+    /// [`mutate`] compiled for instruction set `isa` (the same flies on each, as for
+    /// [`breed`]), the coins' lists made 8 (AVX2) or 16 (AVX-512) coins at a time.
+    fn mutate_on(
+        coords: [&mut [f32]; 3],
+        masks: &[u64],
+        hits: &mut [u32],
+        generator: &mut Xoshiro256PlusPlus,
+        threshold: u32,
+        sigma: f32,
+    );
+    up to Avx512 => mutate_at
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
-unsafe fn mutate_avx512(
+#[inline(always)]
+fn mutate_at(
+    level: Level,
     coords: [&mut [f32]; 3],
     masks: &[u64],
     hits: &mut [u32],
@@ -1086,23 +1034,15 @@ unsafe fn mutate_avx512(
     threshold: u32,
     sigma: f32,
 ) {
-    // SAFETY: the features `coin_lists_avx512` needs are enabled for this function.
-    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| unsafe { coin_lists_avx512(m, t, l) };
-    mutate_with(coords, masks, hits, generator, threshold, sigma, lists);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,bmi2")]
-unsafe fn mutate_avx2(
-    coords: [&mut [f32]; 3],
-    masks: &[u64],
-    hits: &mut [u32],
-    generator: &mut Xoshiro256PlusPlus,
-    threshold: u32,
-    sigma: f32,
-) {
-    // SAFETY: the features `coin_lists_avx2` needs are enabled for this function.
-    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| unsafe { coin_lists_avx2(m, t, l) };
+    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| match level {
+        // SAFETY: the level is AVX-512 only in `mutate_on`'s AVX-512 function.
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx512 => unsafe { coin_lists_avx512(m, t, l) },
+        // SAFETY: as above, for AVX2.
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx2 => unsafe { coin_lists_avx2(m, t, l) },
+        _ => coin_lists(m, t, l, 0, [0; 3]),
+    };
     mutate_with(coords, masks, hits, generator, threshold, sigma, lists);
 }
 
@@ -1257,16 +1197,23 @@ fn gather(flags: impl Iterator<Item = bool>, base: usize, out: &mut [u32]) -> us
     count.min(out.len())
 }
 
-/// [`gather`] of the flags equal to `set`, on instruction set `isa` (the same list on each).
-fn gather_flags(isa: Isa, flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
-    match isa {
-        // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL were detected.
+dispatch! {
+    /// [`gather`] of the flags equal to `set`, on instruction set `isa` (the same list on
+    /// each).
+    fn gather_flags(flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize;
+    up to Avx512 => gather_flags_at
+}
+
+#[inline(always)]
+fn gather_flags_at(level: Level, flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
+    match level {
+        // SAFETY: the level is AVX-512 only in `gather_flags`'s AVX-512 function.
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { gather_flags_avx512(flags, set, base, out) },
-        // SAFETY: `Isa::Avx2` is only ever set after AVX2 was detected.
+        Level::Avx512 => unsafe { gather_flags_avx512(flags, set, base, out) },
+        // SAFETY: as above, for AVX2.
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { gather_flags_avx2(flags, set, base, out) },
-        Isa::Baseline => gather(flags.iter().map(|&f| f == set), base, out),
+        Level::Avx2 => unsafe { gather_flags_avx2(flags, set, base, out) },
+        _ => gather(flags.iter().map(|&f| f == set), base, out),
     }
 }
 

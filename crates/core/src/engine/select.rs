@@ -6,7 +6,7 @@
 //! selection. Ties at the boundary go to the lower index, so the result depends only on the
 //! fitness values, never on an earlier permutation.
 
-use crate::isa::Isa;
+use crate::isa::{Isa, Level, dispatch};
 
 /// Bins of the radix pass: the top 15 bits below the sign (exponent and 7 mantissa bits, so a
 /// bin spans under 1 % of fitness). The finer the bins, the fewer flies share the boundary bin,
@@ -18,6 +18,11 @@ const SHIFT: u32 = 16;
 
 /// Keys tested at once for the boundary bin.
 const CHUNK: usize = 32;
+
+dispatch! {
+    fn select_on(sel: &mut Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);
+    up to Avx512 => Selector::select_at
+}
 
 #[derive(Debug, Clone)]
 pub(crate) struct Selector {
@@ -50,27 +55,12 @@ impl Selector {
         keep: usize,
         chosen: &mut [bool],
     ) {
-        match isa {
-            Isa::Baseline => self.select(fitness, keep, chosen),
-            // SAFETY: `Isa::Avx2` and `Isa::Avx512` are only ever set after AVX2 was detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.select_avx2(fitness, keep, chosen) },
-            // SAFETY: `Isa::Avx512` is only ever set after AVX-512 F/BW/VL were detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { self.select_avx512(fitness, keep, chosen) },
-        }
+        select_on(isa, self, fitness, keep, chosen);
     }
 
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn select_avx2(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
-        self.select(fitness, keep, chosen);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
-    unsafe fn select_avx512(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
-        self.select(fitness, keep, chosen);
+    #[inline(always)]
+    fn select_at(_: Level, sel: &mut Self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+        sel.select(fitness, keep, chosen);
     }
 
     /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.

@@ -16,7 +16,7 @@
 
 use super::Population;
 use super::fitness::trunc;
-use crate::isa::Isa;
+use crate::isa::{Isa, Level, dispatch};
 
 #[derive(Debug, Clone)]
 pub(crate) struct Grid {
@@ -61,27 +61,7 @@ impl Grid {
 
     /// [`Grid::apply`] compiled for instruction set `isa` (the same fitness on each).
     pub(crate) fn apply_on(&mut self, isa: Isa, pop: &mut Population) {
-        match isa {
-            Isa::Baseline => self.apply(pop),
-            // SAFETY: `Isa::Avx2` is only ever set after `is_x86_feature_detected!("avx2")`.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.apply_avx2(pop) },
-            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { self.apply_avx512(pop) },
-        }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn apply_avx2(&mut self, pop: &mut Population) {
-        self.apply(pop);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
-    unsafe fn apply_avx512(&mut self, pop: &mut Population) {
-        self.apply(pop);
+        apply_on(isa, self, pop);
     }
 
     /// Sets `fitness` from `raw_fitness` and the cells the evaluation assigned (`u32::MAX` for a
@@ -103,6 +83,23 @@ impl Grid {
             *f = raw * factor;
         }
     }
+}
+
+dispatch! {
+    fn apply_on(grid: &mut Grid, pop: &mut Population);
+    up to Avx512 => Grid::apply_at
+}
+
+impl Grid {
+    #[inline(always)]
+    fn apply_at(_: Level, grid: &mut Self, pop: &mut Population) {
+        grid.apply(pop);
+    }
+}
+
+dispatch! {
+    fn index_on(mates: &mut Mates, cells: &[u32]);
+    up to Avx512 => Mates::index_at
 }
 
 /// Survivors grouped by sharing cell, for mating restriction: a crossover between two flies on
@@ -127,30 +124,20 @@ impl Mates {
         }
     }
 
-    /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each).
+    /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each; with
+    /// AVX-512, the prefix sum 16 cells a vector).
     pub(crate) fn index_on(&mut self, isa: Isa, cells: &[u32]) {
-        match isa {
-            Isa::Baseline => self.index(cells),
-            // SAFETY: `Isa::Avx2` is only ever set after AVX2 was detected.
+        index_on(isa, self, cells);
+    }
+
+    #[inline(always)]
+    fn index_at(level: Level, mates: &mut Self, cells: &[u32]) {
+        match level {
+            // SAFETY: the level is AVX-512 only in `index_on`'s AVX-512 function.
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { self.index_avx2(cells) },
-            // SAFETY: `Isa::Avx512` is only ever set after AVX2 and AVX-512 F/BW/VL were detected.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { self.index_avx512(cells) },
+            Level::Avx512 => mates.index_with(cells, |v| unsafe { prefix_sum_avx512(v) }),
+            _ => mates.index(cells),
         }
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2")]
-    unsafe fn index_avx2(&mut self, cells: &[u32]) {
-        self.index(cells);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
-    unsafe fn index_avx512(&mut self, cells: &[u32]) {
-        // SAFETY: the features `prefix_sum_avx512` needs are enabled for this function.
-        self.index_with(cells, |v: &mut [u32]| unsafe { prefix_sum_avx512(v) });
     }
 
     /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
@@ -315,9 +302,9 @@ mod tests {
             prefix_sum(&mut got);
             assert_eq!(got, want, "n {n}");
             #[cfg(target_arch = "x86_64")]
-            if Isa::available().contains(&Isa::Avx512) {
+            if Isa::detect().level() == Level::Avx512 {
                 let mut got = v.clone();
-                // SAFETY: AVX-512 F/BW/VL detected just above.
+                // SAFETY: the detected `Isa` proves AVX-512 F/BW/VL.
                 unsafe { prefix_sum_avx512(&mut got) };
                 assert_eq!(got, want, "avx512 n {n}");
             } else if n == 0 {

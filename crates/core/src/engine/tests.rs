@@ -812,7 +812,6 @@ fn probe_rays_stay_inside_the_road_region_of_interest() {
 
 #[test]
 fn every_instruction_set_gives_the_same_fitness() {
-    use super::fitness::Isa;
     let rig = rig();
     let frame = wall_frame(&rig, 4.0, 11, 1);
     let mut e = Engine::new(&rig, params(2000, 11)).expect("engine");
@@ -844,7 +843,7 @@ fn every_instruction_set_gives_the_same_fitness() {
             .collect();
         (bits, m)
     };
-    let (base, m_base) = eval(Isa::Baseline);
+    let (base, m_base) = eval(Isa::BASELINE);
     assert!(
         m_base.matched > 1000,
         "{m_base:?}: the flies should have converged"
@@ -864,7 +863,6 @@ fn every_instruction_set_gives_the_same_population() {
     // The whole engine (evaluation, projections of immigrants, warnings) on the baseline and
     // on the detected instruction set, through a panel appearing (guided immigrants, probes,
     // redrawn outsiders) and new frames.
-    use super::fitness::Isa;
     if Isa::available().len() == 1 {
         println!(
             "SKIP every_instruction_set_gives_the_same_population: only the baseline on this CPU"
@@ -885,7 +883,7 @@ fn every_instruction_set_gives_the_same_population() {
             .collect();
         (e.population().clone(), stats)
     };
-    let (base, base_stats) = run(Isa::Baseline);
+    let (base, base_stats) = run(Isa::BASELINE);
     assert!(
         base_stats.iter().any(|s| s.probes > 0),
         "the panel should have been probed: {base_stats:?}"
@@ -928,12 +926,12 @@ fn the_simd_coin_lists_are_the_scalar_ones() {
                 let [a, b, c] = &mut got[..] else {
                     unreachable!()
                 };
-                // SAFETY: `isa` is one this CPU has.
-                let gc = unsafe {
-                    match isa {
-                        Isa::Avx512 => coin_lists_avx512(&masks, t, [a, b, c]),
-                        _ => coin_lists_avx2(&masks, t, [a, b, c]),
-                    }
+                let gc = match isa.level() {
+                    // SAFETY: `isa` (from detection) proves AVX-512 F/BW/VL.
+                    Level::Avx512 => unsafe { coin_lists_avx512(&masks, t, [a, b, c]) },
+                    // SAFETY: `isa` proves AVX2.
+                    Level::Avx2 => unsafe { coin_lists_avx2(&masks, t, [a, b, c]) },
+                    Level::Baseline => unreachable!("the loop skips the baseline"),
                 };
                 assert_eq!(wc, gc, "{isa:?} n {n} t {t}");
                 for k in 0..3 {
