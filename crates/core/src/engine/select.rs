@@ -1,4 +1,5 @@
-//! Elitist, deterministic selection in O(N): which flies are the `keep` fittest.
+//! Elitist, deterministic selection in O(N): which flies are the `keep` fittest, and the
+//! compaction that moves them to the front ([`Survival`]).
 //!
 //! A sort costs O(N log N) and a comparison-based selection chases an index array through the
 //! fitness array. Non-negative f32 compare like their bit patterns as integers, so a radix pass
@@ -6,6 +7,8 @@
 //! selection. Ties at the boundary go to the lower index, so the result depends only on the
 //! fitness values, never on an earlier permutation.
 
+use super::Population;
+use super::lists::gather_flags;
 use crate::isa::{Isa, Level, dispatch};
 
 /// Bins of the radix pass: the top 15 bits below the sign (exponent and 7 mantissa bits, so a
@@ -18,6 +21,48 @@ const SHIFT: u32 = 16;
 
 /// Keys tested at once for the boundary bin.
 const CHUNK: usize = 32;
+
+/// Survival: the `keep` fittest flies (by shared fitness) move to the front of the population,
+/// in place. Owns the selection and the compaction's lists.
+#[derive(Debug, Clone)]
+pub(super) struct Survival {
+    selector: Selector,
+    /// Survivor flags of the current selection.
+    chosen: Vec<bool>,
+    /// Non-survivor slots below `keep`, survivors above it.
+    holes: Vec<u32>,
+    movers: Vec<u32>,
+}
+
+impl Survival {
+    pub(super) fn new(flies: usize) -> Self {
+        Self {
+            selector: Selector::new(flies),
+            chosen: vec![false; flies],
+            holes: vec![0; flies],
+            movers: vec![0; flies],
+        }
+    }
+
+    /// Selects the `keep` fittest flies of `pop` and compacts them into `0..keep`.
+    pub(super) fn run(&mut self, isa: Isa, pop: &mut Population, keep: usize) {
+        let n = pop.len();
+        let t = super::phase::start(super::phase::Phase::Select);
+        self.selector
+            .select_on(isa, &pop.fitness, keep, &mut self.chosen);
+        t.stop();
+        let _t = super::phase::start(super::phase::Phase::Compact);
+        // Each non-survivor slot below `keep` takes a survivor from above it, the k-th hole
+        // the k-th such survivor. There are exactly as many of one as of the other. Survivors
+        // already below `keep` (the usual case for long-lived flies) do not move. The two
+        // lists are built without branches (a survivor flag is a coin toss to a predictor).
+        let holes = gather_flags(isa, &self.chosen[..keep], false, 0, &mut self.holes);
+        let movers = gather_flags(isa, &self.chosen[keep..n], true, keep, &mut self.movers);
+        for k in 0..holes.min(movers) {
+            pop.move_fly(self.holes[k] as usize, self.movers[k] as usize);
+        }
+    }
+}
 
 dispatch! {
     fn select_on(sel: &mut Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);

@@ -1,9 +1,19 @@
 //! Engine tests on an analytic scene: a textured wall facing the cameras.
 
+use super::immigration::{REFINE_PROBES, REFINE_STAGES, first_fittest};
+use super::sampler::lerp;
 use super::*;
 use crate::frame::{PixelFormat, PreparedImage};
 use crate::geometry::{Camera, Distortion, Intrinsics, rotation_from_angles};
 use nalgebra::Point3;
+use rand::Rng;
+
+/// The warnings step of `e`'s population: (mean warning, danger, mean fitness, visible).
+fn warnings(e: &mut Engine) -> (f64, f64, f64, usize) {
+    let p = &e.setup.params;
+    let (min_x, min_z) = (p.warning_min_abs_x as f32, p.warning_min_z as f32);
+    warnings_on(e.isa, &mut e.pop, min_x, min_z)
+}
 
 fn rig() -> StereoRig {
     let cam = |x: f64| {
@@ -198,8 +208,8 @@ fn new_frame_reevaluates_every_fly() {
     let mut fresh = e.population().clone();
     let n = fresh.len();
     kernel.evaluate(
-        &e.left,
-        &e.right,
+        &e.setup.left,
+        &e.setup.right,
         &mut fresh,
         0..n,
         &e.sharing,
@@ -279,64 +289,6 @@ fn offspring_without_mutation_lie_between_two_survivors() {
             "offspring {c} is not on a segment between two survivors"
         );
     }
-}
-
-#[test]
-fn mutation_rate_and_scale() {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
-    let threshold = (0.4f64 * 65536.0).round() as u32;
-    let n = 20000;
-    let (mut x, mut y, mut z) = (vec![0.0; n], vec![0.0; n], vec![5.0; n]);
-    let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
-    let mut hits = vec![0; 3 * n];
-    mutate(
-        [&mut x, &mut y, &mut z],
-        &masks,
-        &mut hits,
-        &mut rng,
-        threshold,
-        0.02,
-    );
-    let (mut moved, mut sq) = (0usize, 0.0f64);
-    for (j, m) in masks.iter().enumerate() {
-        for (k, d) in [x[j], y[j], z[j] - 5.0].into_iter().enumerate() {
-            let hit = (m >> (16 * k)) & 0xffff < u64::from(threshold);
-            assert_eq!(
-                d != 0.0,
-                hit,
-                "coordinate {k} of fly {j} moves iff its bits say so"
-            );
-            if hit {
-                moved += 1;
-                sq += f64::from(d).powi(2);
-            }
-        }
-    }
-    let rate = moved as f64 / (3 * n) as f64;
-    assert!((rate - 0.4).abs() < 0.01, "mutation rate {rate}");
-    let sigma = (sq / moved as f64).sqrt();
-    assert!((sigma - 0.1).abs() < 0.005, "sigma {sigma} for 0.02 * 5 m");
-    let (mut x, mut y, mut z) = (vec![1.0; 4], vec![2.0; 4], vec![3.0; 4]);
-    mutate(
-        [&mut x, &mut y, &mut z],
-        &masks[..4],
-        &mut hits,
-        &mut rng,
-        0,
-        0.02,
-    );
-    assert!(
-        x == [1.0; 4] && y == [2.0; 4] && z == [3.0; 4],
-        "rate 0 never mutates"
-    );
-}
-
-#[test]
-fn crossover_is_barycentric() {
-    let (a, b) = ([0.0, 2.0, 4.0], [2.0, 0.0, 8.0]);
-    assert_eq!(crossover(a, b, 1.0), a);
-    assert_eq!(crossover(a, b, 0.0), b);
-    assert_eq!(crossover(a, b, 0.25), [1.5, 0.5, 7.0]);
 }
 
 #[test]
@@ -439,29 +391,44 @@ fn batched_redraw_draws_what_one_by_one_sampling_would() {
             }
         }
         let n = e.pop.len();
-        e.pop.project(&e.left, &e.right, 0..n);
+        e.pop.project(&e.setup.left, &e.setup.right, 0..n);
         e
     };
     let from = 40;
     let (mut batched, mut reference) = (engine(), engine());
-    let used = batched.redraw_outsiders(from);
+    let frame = wall_frame(&rig(), 4.0, 1, 1);
+    let kernel = Kernel::new(&frame, &batched.setup.params, batched.isa);
+    let ctx = Context::of(
+        &batched.setup,
+        &batched.change,
+        &batched.sharing,
+        &kernel,
+        batched.isa,
+    );
+    let used = batched
+        .immigration
+        .redraw_outsiders(&mut batched.pop, from, &ctx, &mut batched.rng);
     let mut redrawn = 0;
     for i in from..reference.pop.len() {
         let p = [reference.pop.x[i], reference.pop.y[i], reference.pop.z[i]];
         if reference.pop.u_left[i].is_nan()
             || reference.pop.u_right[i].is_nan()
-            || !reference.sampler.in_roi(&p)
+            || !reference.setup.sampler.in_roi(&p)
         {
-            let (p, _) = reference.sample_fly();
+            let (p, _) = reference.setup.sampler.sample_fly(
+                &mut reference.rng,
+                &reference.setup.left,
+                &reference.setup.right,
+            );
             (reference.pop.x[i], reference.pop.y[i], reference.pop.z[i]) = (p[0], p[1], p[2]);
             redrawn += 1;
         }
     }
     assert!(redrawn > 120, "only {redrawn} outsiders");
     assert!(
-        used > batched.probe.len(),
+        used > batched.immigration.probe.len(),
         "{used} candidates fit one batch of {}",
-        batched.probe.len()
+        batched.immigration.probe.len()
     );
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(bits(&batched.pop.x), bits(&reference.pop.x));
@@ -476,7 +443,7 @@ fn skipping_a_candidate_draws_what_drawing_it_does() {
     let e = Engine::new(&rig(), params(100, 3)).expect("engine");
     let (mut a, mut b) = (e.rng.clone(), e.rng.clone());
     for _ in 0..5 {
-        e.sampler.candidate(&mut a);
+        e.setup.sampler.candidate(&mut a);
         Sampler::skip_candidate(&mut b);
     }
     assert_eq!(a.next_u64(), b.next_u64());
@@ -504,11 +471,11 @@ fn danger_is_independent_of_the_fitness_scale() {
     for _ in 0..10 {
         e.step(&frame).expect("step");
     }
-    let (w1, d1, _, _) = e.warnings();
+    let (w1, d1, _, _) = warnings(&mut e);
     for f in e.pop.raw_fitness.iter_mut() {
         *f *= 8.0;
     }
-    let (w8, d8, _, _) = e.warnings();
+    let (w8, d8, _, _) = warnings(&mut e);
     assert!((w8 / w1 - 8.0).abs() < 1e-4, "{w1} {w8}");
     assert!((d8 / d1 - 1.0).abs() < 1e-5, "{d1} {d8}");
 }
@@ -652,31 +619,31 @@ fn probed_immigrants_reach_the_fitness_peak_of_their_ray() {
     e.step(&a).expect("step");
     e.step(&a).expect("step");
     e.step(&b).expect("step");
-    let k = e.params.immigrant_probes as usize;
-    let probing = e.probed / (k + REFINE_STAGES * REFINE_PROBES);
+    let k = e.setup.params.immigrant_probes as usize;
+    let probing = e.immigration.probed / (k + REFINE_STAGES * REFINE_PROBES);
     assert!(probing > 100, "{probing} immigrants probed");
-    let kernel = Kernel::new(&b, &e.params, e.isa);
+    let kernel = Kernel::new(&b, &e.setup.params, e.isa);
     let steps = 2000;
     let mut dense = Population::with_len(steps);
     let mut scratch = fitness::Scratch::new(steps);
     let (mut found, mut best) = (0.0f64, 0.0f64);
     for j in 0..probing {
-        let [xn, yn, i0, i1] = e.probe_ray[j];
+        let [xn, yn, i0, i1] = e.immigration.probe_ray[j];
         for s in 0..steps {
             let t = s as f32 / (steps - 1) as f32;
-            let q = e.sampler.at(xn, yn, 1.0 / lerp((i0, i1), t));
+            let q = e.setup.sampler.at(xn, yn, 1.0 / lerp((i0, i1), t));
             (dense.x[s], dense.y[s], dense.z[s]) = (q[0], q[1], q[2]);
         }
         kernel.evaluate(
-            &e.left,
-            &e.right,
+            &e.setup.left,
+            &e.setup.right,
             &mut dense,
             0..steps,
             &e.sharing,
             &mut scratch,
         );
         best += f64::from(first_fittest(&dense.raw_fitness).1);
-        found += f64::from(e.probe_best[j].1);
+        found += f64::from(e.immigration.probe_best[j].1);
     }
     eprintln!(
         "mean fitness of the probed immigrants {:.2}, best along their rays {:.2}",
@@ -790,15 +757,15 @@ fn probe_rays_stay_inside_the_road_region_of_interest() {
     let roi = RoadRoi::default();
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
     let mut checked = 0;
-    for b in 0..e.sampler.blocks.len() {
-        let Some((xn, yn)) = e.sampler.in_block(&mut rng, b) else {
+    for b in 0..e.setup.sampler.blocks.len() {
+        let Some((xn, yn)) = e.setup.sampler.in_block(&mut rng, b) else {
             continue;
         };
-        let Some(inv) = e.sampler.ray_range(xn, yn) else {
+        let Some(inv) = e.setup.sampler.ray_range(xn, yn) else {
             continue;
         };
         for t in [0.0, 0.5, 1.0] {
-            let q = e.sampler.at(xn, yn, 1.0 / lerp(inv, t));
+            let q = e.setup.sampler.at(xn, yn, 1.0 / lerp(inv, t));
             assert!(
                 q[1] >= roi.min_height as f32 - 1e-3 && q[1] <= roi.max_height as f32 + 1e-3,
                 "block {b}: height {} outside the region of interest",
@@ -826,11 +793,11 @@ fn every_instruction_set_gives_the_same_fitness() {
     }
     let eval = |isa| {
         let mut pop = e.pop.clone();
-        let kernel = Kernel::new(&frame, &e.params, isa);
+        let kernel = Kernel::new(&frame, &e.setup.params, isa);
         let n = pop.len();
         let m = kernel.evaluate(
-            &e.left,
-            &e.right,
+            &e.setup.left,
+            &e.setup.right,
             &mut pop,
             0..n,
             &e.sharing,
@@ -901,64 +868,5 @@ fn every_instruction_set_gives_the_same_population() {
             bits(&base) == bits(&fast),
             "populations differ between the baseline and {isa:?}"
         );
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[test]
-fn the_simd_coin_lists_are_the_scalar_ones() {
-    if Isa::available().len() == 1 {
-        println!("SKIP the_simd_coin_lists_are_the_scalar_ones: this CPU has no AVX2");
-        return;
-    }
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
-    // Lengths around the 8- and 16-coin blocks; thresholds from never to always.
-    for n in [0, 1, 7, 8, 9, 15, 16, 17, 31, 100, 2750] {
-        let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
-        for t in [0u64, 1, 26214, 32768, 65535, 65536] {
-            let mut want = vec![vec![u32::MAX; n]; 3];
-            let [a, b, c] = &mut want[..] else {
-                unreachable!()
-            };
-            let wc = coin_lists(&masks, t, [a, b, c], 0, [0; 3]);
-            for &isa in &Isa::available()[1..] {
-                let mut got = vec![vec![u32::MAX; n]; 3];
-                let [a, b, c] = &mut got[..] else {
-                    unreachable!()
-                };
-                let gc = match isa.level() {
-                    // SAFETY: `isa` (from detection) proves AVX-512 F/BW/VL.
-                    Level::Avx512 => unsafe { coin_lists_avx512(&masks, t, [a, b, c]) },
-                    // SAFETY: `isa` proves AVX2.
-                    Level::Avx2 => unsafe { coin_lists_avx2(&masks, t, [a, b, c]) },
-                    Level::Baseline => unreachable!("the loop skips the baseline"),
-                };
-                assert_eq!(wc, gc, "{isa:?} n {n} t {t}");
-                for k in 0..3 {
-                    assert_eq!(
-                        want[k][..wc[k]],
-                        got[k][..gc[k]],
-                        "{isa:?} n {n} t {t} list {k}"
-                    );
-                }
-            }
-        }
-    }
-}
-
-#[test]
-fn gathered_flags_are_the_same_on_every_instruction_set() {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
-    for n in [0, 1, 15, 16, 17, 33, 2000] {
-        let flags: Vec<bool> = (0..n).map(|_| rng.next_u32() % 3 == 0).collect();
-        for set in [false, true] {
-            let mut want = vec![u32::MAX; n];
-            let w = gather(flags.iter().map(|&f| f == set), 7, &mut want);
-            for &isa in Isa::available() {
-                let mut got = vec![u32::MAX; n];
-                let g = gather_flags(isa, &flags, set, 7, &mut got);
-                assert_eq!((w, &want[..w]), (g, &got[..g]), "{isa:?} n {n} set {set}");
-            }
-        }
     }
 }

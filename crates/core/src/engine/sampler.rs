@@ -1,0 +1,235 @@
+//! Where new flies come from: uniform over the left image and uniform in inverse depth (the
+//! quantity stereo resolves uniformly), inside the search range and the road region of
+//! interest, kept when both cameras see them (see the engine's module docs).
+
+use super::EngineError;
+use super::params::EngineParams;
+use super::projector::Projector;
+use crate::frame::BLOCK;
+use crate::geometry::StereoRig;
+use rand::Rng;
+
+/// Left-camera sampling domain for new flies.
+#[derive(Debug, Clone)]
+pub(super) struct Sampler {
+    /// Undistorted normalised bounds of the left image.
+    xn: (f32, f32),
+    yn: (f32, f32),
+    /// Inverse depth range.
+    inv_depth: (f32, f32),
+    /// Undistorted normalised bounds (x0, x1, y0, y1) of each 16x16 block of the left image.
+    pub(super) blocks: Vec<[f32; 4]>,
+    /// Road region of interest as (min height, max height): new flies are drawn inside it.
+    heights: Option<(f32, f32)>,
+    /// Vehicle from left camera: `p_vehicle = m * p_cam + c`.
+    m: [f32; 9],
+    c: [f32; 3],
+}
+
+/// Attempts to draw a fly visible in both images before giving up on that slot.
+pub(super) const SAMPLE_ATTEMPTS: usize = 16;
+
+/// A uniform f32 in [0, 1) from 24 random bits.
+#[inline]
+pub(super) fn unit_f32(bits: u32) -> f32 {
+    (bits >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+#[inline]
+pub(super) fn lerp((a, b): (f32, f32), t: f32) -> f32 {
+    a + (b - a) * t
+}
+
+impl Sampler {
+    /// Whether a new fly at `p` lies in the region of interest (always true without one).
+    #[inline]
+    pub(super) fn in_roi(&self, p: &[f32; 3]) -> bool {
+        self.heights.is_none_or(|(lo, hi)| p[1] >= lo && p[1] <= hi)
+    }
+
+    #[inline]
+    pub(super) fn point<R: Rng>(&self, xn: f32, yn: f32, rng: &mut R) -> [f32; 3] {
+        self.at(xn, yn, 1.0 / lerp(self.inv_depth, unit_f32(rng.next_u32())))
+    }
+
+    /// A point in left-image block `b` (uniform over its normalised bounds), uniform in inverse
+    /// depth.
+    #[inline]
+    pub(super) fn candidate_in_block<R: Rng>(&self, rng: &mut R, b: usize) -> [f32; 3] {
+        match self.in_block(rng, b) {
+            Some((xn, yn)) => self.point(xn, yn, rng),
+            None => self.candidate(rng),
+        }
+    }
+
+    /// A point of left-image block `b`, uniform over its normalised bounds.
+    #[inline]
+    pub(super) fn in_block<R: Rng>(&self, rng: &mut R, b: usize) -> Option<(f32, f32)> {
+        let &[x0, x1, y0, y1] = self.blocks.get(b)?;
+        let r = rng.next_u64();
+        Some((
+            lerp((x0, x1), unit_f32(r as u32)),
+            lerp((y0, y1), unit_f32((r >> 32) as u32)),
+        ))
+    }
+
+    /// The inverse-depth range of the left camera's ray through normalised `(xn, yn)` inside
+    /// the search range and the road region of interest; `None` when no point qualifies.
+    #[inline]
+    pub(super) fn ray_range(&self, xn: f32, yn: f32) -> Option<(f32, f32)> {
+        let (mut near, mut far) = (1.0 / self.inv_depth.1, 1.0 / self.inv_depth.0);
+        if let Some((lo, hi)) = self.heights {
+            // Height along the ray: y(d) = c_y + d * k.
+            let k = self.m[3] * xn + self.m[4] * yn + self.m[5];
+            let c = self.c[1];
+            if k.abs() < 1e-6 {
+                if c < lo || c > hi {
+                    return None;
+                }
+            } else {
+                let (a, b) = ((lo - c) / k, (hi - c) / k);
+                near = near.max(a.min(b));
+                far = far.min(a.max(b));
+            }
+        }
+        (near < far).then(|| (1.0 / far, 1.0 / near))
+    }
+
+    /// The point at depth `d` along the left camera's ray through normalised `(xn, yn)`.
+    #[inline]
+    pub(super) fn at(&self, xn: f32, yn: f32, d: f32) -> [f32; 3] {
+        let cam = [xn * d, yn * d, d];
+        let m = &self.m;
+        [
+            m[0] * cam[0] + m[1] * cam[1] + m[2] * cam[2] + self.c[0],
+            m[3] * cam[0] + m[4] * cam[1] + m[5] * cam[2] + self.c[1],
+            m[6] * cam[0] + m[7] * cam[1] + m[8] * cam[2] + self.c[2],
+        ]
+    }
+
+    /// A point uniform over the left image's normalised bounds and uniform in inverse depth
+    /// (possibly outside one of the images: callers check).
+    #[inline]
+    pub(super) fn candidate<R: Rng>(&self, rng: &mut R) -> [f32; 3] {
+        let r = rng.next_u64();
+        let xn = lerp(self.xn, unit_f32(r as u32));
+        let yn = lerp(self.yn, unit_f32((r >> 32) as u32));
+        self.point(xn, yn, rng)
+    }
+
+    /// Advances `rng` past the draws of one [`Sampler::candidate`] (tested to agree).
+    #[inline]
+    pub(super) fn skip_candidate<R: Rng>(rng: &mut R) {
+        rng.next_u64();
+        rng.next_u32();
+    }
+
+    pub(super) fn new(rig: &StereoRig, params: &EngineParams) -> Result<Self, EngineError> {
+        let cam = &rig.left;
+        let (w, h) = (cam.width() as f64, cam.height() as f64);
+        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        // The undistorted image of the border bounds the left field of view.
+        let steps = 64;
+        for i in 0..=steps {
+            let t = i as f64 / steps as f64;
+            for (u, v) in [
+                (t * (w - 1.0), 0.0),
+                (t * (w - 1.0), h - 1.0),
+                (0.0, t * (h - 1.0)),
+                (w - 1.0, t * (h - 1.0)),
+            ] {
+                let (xn, yn) = cam
+                    .normalised_from_pixel(u, v)
+                    .ok_or(EngineError::NotInvertible)?;
+                x0 = x0.min(xn);
+                x1 = x1.max(xn);
+                y0 = y0.min(yn);
+                y1 = y1.max(yn);
+            }
+        }
+        let cols = (w as usize).div_ceil(BLOCK);
+        let rows = (h as usize).div_ceil(BLOCK);
+        let mut blocks = Vec::with_capacity(cols * rows);
+        for by in 0..rows {
+            for bx in 0..cols {
+                let (u0, v0) = ((bx * BLOCK) as f64 - 0.5, (by * BLOCK) as f64 - 0.5);
+                let (u1, v1) = (
+                    (u0 + BLOCK as f64).min(w - 0.5),
+                    (v0 + BLOCK as f64).min(h - 0.5),
+                );
+                let (mut b, mut ok) = ([f32::MAX, f32::MIN, f32::MAX, f32::MIN], true);
+                for (u, v) in [(u0, v0), (u1, v0), (u0, v1), (u1, v1)] {
+                    match cam.normalised_from_pixel(u, v) {
+                        Some((xn, yn)) => {
+                            b = [
+                                b[0].min(xn as f32),
+                                b[1].max(xn as f32),
+                                b[2].min(yn as f32),
+                                b[3].max(yn as f32),
+                            ]
+                        }
+                        None => ok = false,
+                    }
+                }
+                // A block the model cannot invert falls back to the whole image.
+                blocks.push(if ok {
+                    b
+                } else {
+                    [x0 as f32, x1 as f32, y0 as f32, y1 as f32]
+                });
+            }
+        }
+        // With a road region of interest, new flies are drawn inside it: flies outside it get
+        // the penalised fitness anyway, so drawing them there only wastes evaluations.
+        let far = match &params.roi {
+            Some(roi) => params.max_depth.min(roi.max_ahead),
+            None => params.max_depth,
+        };
+        let heights = params
+            .roi
+            .map(|roi| (roi.min_height as f32, roi.max_height as f32));
+        let origin = cam.vehicle_from_camera(&nalgebra::Point3::origin());
+        let ex = cam.vehicle_from_camera(&nalgebra::Point3::new(1.0, 0.0, 0.0)) - origin;
+        let ey = cam.vehicle_from_camera(&nalgebra::Point3::new(0.0, 1.0, 0.0)) - origin;
+        let ez = cam.vehicle_from_camera(&nalgebra::Point3::new(0.0, 0.0, 1.0)) - origin;
+        Ok(Self {
+            xn: (x0 as f32, x1 as f32),
+            yn: (y0 as f32, y1 as f32),
+            inv_depth: ((1.0 / far) as f32, (1.0 / params.min_depth) as f32),
+            blocks,
+            heights,
+            m: [
+                ex.x as f32,
+                ey.x as f32,
+                ez.x as f32,
+                ex.y as f32,
+                ey.y as f32,
+                ez.y as f32,
+                ex.z as f32,
+                ey.z as f32,
+                ez.z as f32,
+            ],
+            c: [origin.x as f32, origin.y as f32, origin.z as f32],
+        })
+    }
+
+    /// A new random fly (see the module docs); the flag says whether both cameras see it.
+    pub(super) fn sample_fly<R: Rng>(
+        &self,
+        rng: &mut R,
+        left: &Projector,
+        right: &Projector,
+    ) -> ([f32; 3], bool) {
+        let mut p = [0.0; 3];
+        for _ in 0..SAMPLE_ATTEMPTS {
+            p = self.candidate(rng);
+            if self.in_roi(&p)
+                && left.project(p[0], p[1], p[2]).is_some()
+                && right.project(p[0], p[1], p[2]).is_some()
+            {
+                return (p, true);
+            }
+        }
+        (p, false)
+    }
+}
