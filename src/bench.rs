@@ -87,10 +87,25 @@ impl std::fmt::Display for GenerationReport {
     }
 }
 
+/// Why the benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error("hw-mock has no {0} scenario")]
+    NoScenario(&'static str),
+    #[error("the benchmark scene")]
+    Mock(#[from] crate::mock::MockError),
+    #[error("the benchmark frames")]
+    Frame(#[from] flyd_core::frame::FrameError),
+    #[error("the engine")]
+    Engine(#[from] flyd_core::engine::EngineError),
+}
+
+/// The scene the benchmark renders.
+const SCENE: &str = "pedestrian-4m";
+
 /// Runs the benchmark (renders the scene first; that is not timed).
-pub fn generations(cfg: &GenerationBench) -> anyhow::Result<GenerationReport> {
-    let scenario = hw_mock::Scenario::by_name("pedestrian-4m")
-        .ok_or_else(|| anyhow::anyhow!("hw-mock has no pedestrian-4m scenario"))?;
+pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError> {
+    let scenario = hw_mock::Scenario::by_name(SCENE).ok_or(BenchError::NoScenario(SCENE))?;
     let mut mock = MockStereo::new(scenario, cfg.width, cfg.height)?;
     let mut frames = Vec::new();
     for index in 0..2u32 {

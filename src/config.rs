@@ -29,9 +29,10 @@ use flyd_core::status::FaultBits;
 /// Why a configuration cannot be used.
 #[derive(Debug, Error)]
 pub enum ConfigError {
-    #[error("config file {}: {error}", file.display())]
+    #[error("config file {}", file.display())]
     Io {
         file: PathBuf,
+        #[source]
         error: std::io::Error,
     },
     /// Syntax, an unknown key, a wrong type or a missing key.
@@ -49,8 +50,12 @@ pub enum ConfigError {
         reason: String,
     },
     /// The calibration the config points to cannot be loaded.
-    #[error("config file {}: key 'calibration': {error}", file.display())]
-    Calibration { file: PathBuf, error: CalibError },
+    #[error("config file {}: key 'calibration'", file.display())]
+    Calibration {
+        file: PathBuf,
+        #[source]
+        error: CalibError,
+    },
 }
 
 fn key_prefix(key: &Option<String>) -> String {

@@ -130,7 +130,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("flyd: {}", flyd::logging::error_chain(e.as_ref()));
+            eprintln!("flyd: {}", flyd_core::chain::Chain(e.as_ref()));
             ExitCode::FAILURE
         }
     }

@@ -81,9 +81,9 @@ pub fn mock_rig(width: u32, height: u32) -> Result<StereoRig, CameraError> {
 /// Why the mock stereo feed failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MockError {
-    #[error("mock camera: {0}")]
+    #[error("mock camera")]
     Camera(#[from] CameraError),
-    #[error("mock render: {0}")]
+    #[error("mock render")]
     Render(#[from] RenderError),
     #[error("the rig's cameras differ in size ({left:?} vs {right:?})")]
     SizeMismatch { left: (u32, u32), right: (u32, u32) },

@@ -26,7 +26,11 @@ pub struct FrameMeta {
     pub sequence: u64,
 }
 
-/// Why a source delivered no frame.
+/// What caused a [`SourceError`] (an I/O error of the device, a frame that does not decode).
+pub type Cause = Box<dyn std::error::Error + Send + Sync>;
+
+/// Why a source delivered no frame. `reason` says what flyd was doing; the error underneath,
+/// if any, is the `source()`.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
     /// No frame within the timeout.
@@ -34,13 +38,28 @@ pub enum SourceError {
     Timeout(Duration),
     /// The device vanished or stopped streaming; reopen it (with backoff).
     #[error("device {device} disconnected: {reason}")]
-    Disconnected { device: String, reason: String },
+    Disconnected {
+        device: String,
+        reason: String,
+        #[source]
+        cause: Option<Cause>,
+    },
     /// The device delivers a format or size flyd cannot use.
     #[error("device {device}: {reason}")]
-    Format { device: String, reason: String },
+    Format {
+        device: String,
+        reason: String,
+        #[source]
+        cause: Option<Cause>,
+    },
     /// A frame arrived but could not be decoded (e.g. corrupt MJPEG); the next one may be fine.
     #[error("device {device}: corrupt frame: {reason}")]
-    Corrupt { device: String, reason: String },
+    Corrupt {
+        device: String,
+        reason: String,
+        #[source]
+        cause: Option<Cause>,
+    },
     /// The source has no more frames (end of a recorded or mock scenario).
     #[error("end of stream")]
     EndOfStream,

@@ -29,6 +29,7 @@
 
 use super::convert::{CaptureFormat, ConvertError, FrameConverter, fourcc_str};
 use crate::source::{FrameMeta, FrameSource, SourceError};
+use flyd_core::chain::Chain;
 use flyd_core::frame::{PixelFormat, PreparedImage};
 use std::io;
 use std::os::raw::{c_int, c_void};
@@ -143,6 +144,7 @@ pub(crate) fn check_format(
                 got.height,
                 fourcc_str(got.fourcc)
             ),
+            cause: None,
         });
     }
     Ok(())
@@ -167,6 +169,7 @@ pub(crate) fn check_frame_rate(
                 "asked for {fps} fps, the driver granted a frame interval of \
                  {numerator}/{denominator} s ({granted:.2} fps)"
             ),
+            cause: None,
         });
     }
     Ok(())
@@ -239,6 +242,14 @@ fn retry_in_place(e: &io::Error) -> bool {
 
 /// Maps an I/O error from streaming to the trait's error: a timeout is a timeout, everything
 /// else means "reopen" (a vanished USB camera gives ENODEV, a dead stream EIO or EPIPE).
+/// `e` again (an `io::Error` is not `Clone`): its kind, errno and message.
+fn copy_io_error(e: &io::Error) -> io::Error {
+    match e.raw_os_error() {
+        Some(errno) => io::Error::from_raw_os_error(errno),
+        None => io::Error::new(e.kind(), e.to_string()),
+    }
+}
+
 pub(crate) fn classify(device: &str, op: &str, e: &io::Error, timeout: Duration) -> SourceError {
     if e.kind() == io::ErrorKind::TimedOut {
         return SourceError::Timeout(timeout);
@@ -250,13 +261,15 @@ pub(crate) fn classify(device: &str, op: &str, e: &io::Error, timeout: Duration)
     };
     SourceError::Disconnected {
         device: device.to_owned(),
-        reason: format!("{op}: {why}: {e}"),
+        reason: format!("{op}: {why}"),
+        cause: Some(copy_io_error(e).into()),
     }
 }
 
 /// Maps an error opening the node: a missing node or a busy device may come back (reopen with
 /// backoff); a node that is not V4L2 is a configuration mistake.
 pub(crate) fn open_error(device: &str, op: &str, e: &io::Error) -> SourceError {
+    let cause = || Some(copy_io_error(e).into());
     let hint = match e.raw_os_error() {
         Some(libc::ENOENT) => " (camera not plugged in, or wrong path)",
         Some(libc::EACCES) | Some(libc::EPERM) => {
@@ -266,14 +279,16 @@ pub(crate) fn open_error(device: &str, op: &str, e: &io::Error) -> SourceError {
         Some(libc::ENOTTY) => {
             return SourceError::Format {
                 device: device.to_owned(),
-                reason: format!("{op}: not a V4L2 device: {e}"),
+                reason: format!("{op}: not a V4L2 device"),
+                cause: cause(),
             };
         }
         _ => "",
     };
     SourceError::Disconnected {
         device: device.to_owned(),
-        reason: format!("{op}: {e}{hint}"),
+        reason: format!("{op}{hint}"),
+        cause: cause(),
     }
 }
 
@@ -448,7 +463,8 @@ impl Streaming {
         if let Err(e) = config.validate() {
             return Err(SourceError::Format {
                 device: name.to_owned(),
-                reason: format!("bad camera config: {e}"),
+                reason: "bad camera config".into(),
+                cause: Some(e.into()),
             });
         }
         let device = Device::with_path(&config.device).map_err(|e| open_error(name, "open", &e))?;
@@ -458,14 +474,16 @@ impl Streaming {
         check_capabilities(caps, device_caps).map_err(|reason| SourceError::Format {
             device: name.to_owned(),
             reason,
+            cause: None,
         })?;
         let negotiated = set_format(fd, config).map_err(|e| match e.raw_os_error() {
             Some(libc::EINVAL) => SourceError::Format {
                 device: name.to_owned(),
                 reason: format!(
-                    "VIDIOC_S_FMT refused {}x{} {}: {e}",
+                    "VIDIOC_S_FMT refused {}x{} {}",
                     config.width, config.height, config.format
                 ),
+                cause: Some(e.into()),
             },
             _ => open_error(name, "VIDIOC_S_FMT", &e),
         })?;
@@ -489,7 +507,8 @@ impl Streaming {
         )
         .map_err(|e| SourceError::Format {
             device: name.to_owned(),
-            reason: e.to_string(),
+            reason: "the negotiated format".into(),
+            cause: Some(e.into()),
         })?;
         let stream = MmapStream::with_buffers(&device, BufferType::VideoCapture, BUFFERS)
             .map_err(|e| open_error(name, "mmap buffers", &e))?;
@@ -521,6 +540,7 @@ impl Streaming {
             return Err(SourceError::Disconnected {
                 device: name.to_owned(),
                 reason: "stream closed".into(),
+                cause: None,
             });
         };
         let converter = &mut self.converter;
@@ -528,23 +548,26 @@ impl Streaming {
         let deadline = Instant::now() + timeout;
         let mut on_buffer = |buffer: &[u8], meta: &Metadata| {
             let now = monotonic_now();
-            let corrupt = |reason: String| SourceError::Corrupt {
-                device: name.to_owned(),
-                reason,
-            };
+            let corrupt =
+                |reason: String, cause: Option<crate::source::Cause>| SourceError::Corrupt {
+                    device: name.to_owned(),
+                    reason,
+                    cause,
+                };
             if meta.flags.bits() & BUF_FLAG_ERROR != 0 {
-                return Err(corrupt(format!(
-                    "driver flagged buffer {} as corrupt",
-                    meta.sequence
-                )));
+                return Err(corrupt(
+                    format!("driver flagged buffer {} as corrupt", meta.sequence),
+                    None,
+                ));
             }
-            let data = payload(buffer, meta.bytesused).map_err(corrupt)?;
+            let data = payload(buffer, meta.bytesused).map_err(|r| corrupt(r, None))?;
             converter.prepare(data, out).map_err(|e| match e {
                 ConvertError::Frame(_) | ConvertError::Output { .. } => SourceError::Format {
                     device: name.to_owned(),
-                    reason: e.to_string(),
+                    reason: "converting a frame".into(),
+                    cause: Some(e.into()),
                 },
-                _ => corrupt(e.to_string()),
+                _ => corrupt(format!("buffer {}", meta.sequence), Some(e.into())),
             })?;
             // time_t is i32 on 32-bit ARM.
             #[allow(clippy::unnecessary_cast)]
@@ -688,6 +711,7 @@ impl V4l2Source {
             Some(mut s) => s.teardown().map_err(|reason| SourceError::Disconnected {
                 device: self.name.clone(),
                 reason,
+                cause: None,
             }),
         }
     }
@@ -712,6 +736,7 @@ impl FrameSource for V4l2Source {
             None => Err(SourceError::Disconnected {
                 device: self.name.clone(),
                 reason: "not open".into(),
+                cause: None,
             }),
         }
     }
@@ -720,7 +745,7 @@ impl FrameSource for V4l2Source {
     fn reopen(&mut self) -> Result<(), SourceError> {
         if let Err(e) = self.close() {
             // The old stream is gone either way; say what was leaked and go on opening.
-            tracing::warn!(error = %e, "camera teardown before reopen");
+            tracing::warn!(error = %Chain(&e), "camera teardown before reopen");
         }
         self.streaming = Some(Streaming::open(&self.name, &self.config, self.output)?);
         Ok(())
@@ -1138,7 +1163,7 @@ mod tests {
         let path = "/dev/video-flyd-test-does-not-exist";
         let err = V4l2Source::open(config(path)).unwrap_err();
         assert!(matches!(err, SourceError::Disconnected { .. }), "{err:?}");
-        let msg = err.to_string();
+        let msg = Chain(&err).to_string();
         assert!(msg.contains(path), "{msg}");
         assert!(msg.contains("No such file"), "{msg}");
     }
@@ -1176,7 +1201,7 @@ mod tests {
     fn a_bad_config_fails_before_touching_the_device() {
         let mut c = config("/dev/null");
         c.width = 641;
-        let err = V4l2Source::open(c).unwrap_err().to_string();
+        let err = Chain(&V4l2Source::open(c).unwrap_err()).to_string();
         assert!(err.contains("width") && err.contains("641"), "{err}");
     }
 

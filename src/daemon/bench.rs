@@ -61,8 +61,8 @@ pub fn bench_end_to_end_with(
     runs: usize,
 ) -> Result<BenchReport, DaemonError> {
     let CameraSource::Mock { scenario } = &config.cameras.source else {
-        return Err(DaemonError::Cameras(
-            "the end-to-end benchmark needs mock cameras (cameras.mock)".into(),
+        return Err(DaemonError::BenchScenario(
+            "the configuration has real cameras (set cameras.mock)".into(),
         ));
     };
     let mut reactions = Vec::with_capacity(runs);
@@ -118,11 +118,10 @@ const GUARD: Duration = Duration::from_secs(60);
 fn one_run(config: &DaemonConfig, scenario: &str) -> Result<Outcome, DaemonError> {
     let clock: SharedClock = MonotonicClock::shared();
     let (w, h) = (config.cameras.width, config.cameras.height);
-    let (left, right, truth) =
-        mock_cameras(scenario, w, h, &clock).map_err(|e| DaemonError::Cameras(e.to_string()))?;
+    let (left, right, truth) = mock_cameras(scenario, w, h, &clock)?;
     if truth.first_obstacle_frame().is_none() {
-        return Err(DaemonError::Cameras(format!(
-            "scenario {scenario} has no obstacle to react to"
+        return Err(DaemonError::BenchScenario(format!(
+            "scenario {scenario} has none"
         )));
     }
     let bus_clock = clock.clone();

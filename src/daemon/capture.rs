@@ -8,6 +8,7 @@
 //! exponential backoff until it delivers again. End of stream (a finished mock scenario) asks
 //! the daemon to end.
 
+use flyd_core::chain::Chain;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -108,7 +109,7 @@ impl CaptureThread {
                 }
                 Err(e @ SourceError::Corrupt { .. }) => {
                     self.health.errors.fetch_add(1, Ordering::Relaxed);
-                    tracing::debug!(camera, side, error = %e, "corrupt frame skipped");
+                    tracing::debug!(camera, side, error = %Chain(&e), "corrupt frame skipped");
                 }
                 Err(SourceError::EndOfStream) => {
                     tracing::info!(camera, side, "end of stream: ending the run");
@@ -121,11 +122,11 @@ impl CaptureThread {
                     self.health.error.store(true, Ordering::Relaxed);
                     if !in_error {
                         tracing::warn!(
-                            camera, side, error = %e,
+                            camera, side, error = %Chain(&e),
                             "camera error: reopening with backoff (logged once until it recovers)"
                         );
                         in_error = true;
-                        logged_error = e.to_string();
+                        logged_error = Chain(&e).to_string();
                     }
                     if self.stop.sleep(backoff) {
                         break;
@@ -135,15 +136,15 @@ impl CaptureThread {
                         // A reopen that fails for another reason than the one logged (a camera
                         // that is "not open" at start-up, then has the wrong format) is worth a
                         // warning of its own: the first error alone does not say what is wrong.
-                        let text = e.to_string();
+                        let text = Chain(&e).to_string();
                         if text != logged_error {
                             tracing::warn!(
-                                camera, side, error = %e,
+                                camera, side, error = %Chain(&e),
                                 "camera error: reopening with backoff (logged once until it recovers)"
                             );
                             logged_error = text;
                         } else {
-                            tracing::debug!(camera, side, error = %e, "reopen failed");
+                            tracing::debug!(camera, side, error = %Chain(&e), "reopen failed");
                         }
                     }
                 }

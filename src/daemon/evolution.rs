@@ -16,6 +16,7 @@
 //! Allocation happens only at start: the engine, the two images of the stereo frame, the
 //! estimator's scratch.
 
+use flyd_core::chain::Chain;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -85,7 +86,7 @@ impl EvolutionThread {
             };
             let started = self.clock.now();
             let stats = self.engine.step(&self.stereo).inspect_err(|e| {
-                tracing::error!(error = %e, "generation failed: evolution stops (SNAPSHOT_STALE)");
+                tracing::error!(error = %Chain(e), "generation failed: evolution stops (SNAPSHOT_STALE)");
             })?;
             // The obstacle frame goes out every 100 ms: estimating on each new pair and every
             // ESTIMATE_EVERY-th generation keeps it fresh at a fraction of the cost (a selection

@@ -52,8 +52,7 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
     match &config.cameras.source {
         CameraSource::Mock { scenario } => {
             let (w, h) = (config.cameras.width, config.cameras.height);
-            let (left, right, _) = mock_cameras(scenario, w, h, clock)
-                .map_err(|e| DaemonError::Cameras(e.to_string()))?;
+            let (left, right, _) = mock_cameras(scenario, w, h, clock)?;
             Ok((Box::new(left), Box::new(right)))
         }
         CameraSource::Devices { left, right } => {
@@ -67,8 +66,10 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
                         fps: c.fps.round() as u32,
                         format: c.pixel_format,
                     };
-                    v4l2.validate()
-                        .map_err(|e| DaemonError::Cameras(format!("{}: {e}", device.display())))?;
+                    v4l2.validate().map_err(|error| DaemonError::CameraConfig {
+                        device: device.display().to_string(),
+                        error,
+                    })?;
                     // Not opened here: a camera missing at start is a fault the daemon reports
                     // (CAMERA_ERROR, safe command) while its capture thread retries, not a
                     // reason to refuse to start.

@@ -116,7 +116,7 @@ pub fn mock_cameras(
 pub enum MockCameraError {
     #[error("unknown mock scenario '{name}' (known: {known})")]
     UnknownScenario { name: String, known: String },
-    #[error(transparent)]
+    #[error("mock stereo feed")]
     Mock(#[from] MockError),
 }
 
@@ -142,7 +142,8 @@ impl MockCamera {
                 let feed = &mut *feed;
                 let (l, r) = feed.stereo.frame(k).map_err(|e| SourceError::Format {
                     device: self.name.clone(),
-                    reason: e.to_string(),
+                    reason: format!("rendering frame {k}"),
+                    cause: Some(e.into()),
                 })?;
                 feed.left.copy_from_slice(l);
                 feed.right.copy_from_slice(r);
@@ -204,7 +205,8 @@ impl FrameSource for MockCamera {
         out.prepare(PixelFormat::Rgb8, &self.pixels)
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),
-                reason: e.to_string(),
+                reason: "preparing a frame".into(),
+                cause: Some(e.into()),
             })?;
         self.next = k + 1;
         Ok(FrameMeta {

@@ -77,7 +77,7 @@ use snapshot::ObstacleEstimator;
 pub enum DaemonError {
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error("engine: {0}")]
+    #[error("engine")]
     Engine(#[from] EngineError),
     #[error(
         "camera {camera} delivers {got_w}x{got_h} but the configuration says {want_w}x{want_h}"
@@ -89,24 +89,38 @@ pub enum DaemonError {
         want_w: u32,
         want_h: u32,
     },
-    #[error("frame buffers: {0}")]
+    #[error("frame buffers")]
     Frame(#[from] FrameError),
-    #[error("CAN configuration: {0}")]
+    #[error("CAN configuration")]
     Can(#[from] CanConfigError),
-    #[error("decision configuration: {0}")]
+    #[error("decision configuration")]
     Decision(#[from] DecisionConfigError),
-    #[error("CAN bus {target}: {error}")]
+    #[error("CAN bus {target}")]
     Bus {
         target: String,
+        #[source]
         error: flyd_core::can::bus::BusError,
     },
-    #[error("CAN log {path}: {error}")]
-    CanLog { path: String, error: std::io::Error },
-    #[error("cameras: {0}")]
-    Cameras(String),
-    #[error("cannot start thread {thread}: {error}")]
+    #[error("CAN log {path}")]
+    CanLog {
+        path: String,
+        #[source]
+        error: std::io::Error,
+    },
+    #[error("mock cameras")]
+    MockCameras(#[from] mock_camera::MockCameraError),
+    #[error("camera {device}")]
+    CameraConfig {
+        device: String,
+        #[source]
+        error: crate::capture::v4l2::V4l2ConfigError,
+    },
+    #[error("the end-to-end benchmark needs mock cameras with an obstacle: {0}")]
+    BenchScenario(String),
+    #[error("cannot start thread {thread}")]
     Spawn {
         thread: &'static str,
+        #[source]
         error: std::io::Error,
     },
     #[error("thread {thread} panicked")]
@@ -146,7 +160,7 @@ pub struct RunReport {
     pub overruns: u64,
     /// The evolution thread stopped on an engine error (already logged; the daemon ran on in
     /// FAULT with the safe command).
-    pub evolution_error: Option<String>,
+    pub evolution_error: Option<EngineError>,
 }
 
 const EVOLUTION: &str = "flyd-evolution";
@@ -256,10 +270,7 @@ pub fn run(
         stop: stop.clone(),
     };
     threads.evolution = Some(
-        spawn_named(EVOLUTION, move || {
-            evolution.run().map_err(|e| e.to_string())
-        })
-        .map_err(|error| DaemonError::Spawn {
+        spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
             thread: EVOLUTION,
             error,
         })?,
@@ -330,13 +341,13 @@ pub fn run(
 /// The worker threads; dropping it (an early return) stops and joins them.
 struct Threads {
     captures: Vec<(&'static str, JoinHandle<()>)>,
-    evolution: Option<JoinHandle<Result<(), String>>>,
+    evolution: Option<JoinHandle<Result<(), EngineError>>>,
     stop: Shutdown,
 }
 
 impl Threads {
     /// Stops and joins every thread; returns the evolution thread's error, if any.
-    fn join(&mut self) -> Result<Option<String>, DaemonError> {
+    fn join(&mut self) -> Result<Option<EngineError>, DaemonError> {
         self.stop.request();
         let mut panicked = None;
         let mut evolution_error = None;

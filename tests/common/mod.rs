@@ -172,7 +172,8 @@ impl FrameSource for SceneCamera {
         out.prepare(PixelFormat::Grey8, &self.images[obstacle as usize])
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),
-                reason: e.to_string(),
+                reason: "preparing a frame".into(),
+                cause: Some(e.into()),
             })?;
         let mut timestamp = due;
         if self.right {

@@ -58,16 +58,14 @@ pub struct Calibration {
     pub has_road: bool,
 }
 
-/// Why a calibration file cannot be used.
-///
-/// The underlying cause is part of the message rather than exposed through
-/// [`std::error::Error::source`]: users see the `Display` text, and exposing it twice would
-/// repeat it in `{:#}` error chains.
+/// Why a calibration file cannot be used. Each message names the file (and the field); a
+/// wrapped cause is its [`std::error::Error::source`], not part of the message.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibError {
-    #[error("calibration file {}: {error}", file.display())]
+    #[error("calibration file {}", file.display())]
     Io {
         file: PathBuf,
+        #[source]
         error: std::io::Error,
     },
     #[error(
@@ -83,17 +81,19 @@ pub enum CalibError {
         field: String,
         message: String,
     },
-    #[error("calibration file {}: field '{field}': {error}", file.display())]
+    #[error("calibration file {}: field '{field}'", file.display())]
     Camera {
         file: PathBuf,
         field: String,
+        #[source]
         error: CameraError,
     },
     /// A rig TOML's `[opencv]` import failed; `error` names the imported file.
-    #[error("calibration file {}: field '{field}': {error}", file.display())]
+    #[error("calibration file {}: field '{field}'", file.display())]
     Import {
         file: PathBuf,
         field: String,
+        #[source]
         error: Box<CalibError>,
     },
 }

@@ -54,14 +54,14 @@ impl DisparityMap {
     }
 }
 
-/// Why a dataset file cannot be used.
-///
-/// As with [`crate::calib::CalibError`], the cause is part of the message, not a `source()`.
+/// Why a dataset file cannot be used (as [`crate::calib::CalibError`]: the message names the
+/// file, a wrapped cause is the `source()`).
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
-    #[error("disparity file {}: {error}", file.display())]
+    #[error("disparity file {}", file.display())]
     Io {
         file: PathBuf,
+        #[source]
         error: std::io::Error,
     },
     #[error("disparity file {}: {message}", file.display())]

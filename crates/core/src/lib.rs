@@ -11,6 +11,7 @@ mod macros;
 
 pub mod calib;
 pub mod can;
+pub mod chain;
 pub mod clock;
 pub mod dataset;
 pub mod decision;

@@ -25,7 +25,7 @@ fn check_err(file: &str, expected: &[&str]) {
         Ok(_) => panic!("{file}: loaded, but it is broken"),
         Err(err) => err,
     };
-    let message = err.to_string();
+    let message = crate::chain::chain(&err);
     let name = file.rsplit('/').next().unwrap_or(file);
     assert!(
         message.contains(name),
@@ -265,7 +265,7 @@ fn opencv_rational_model_with_zero_terms_in_millimetres() {
         ..OpenCvImport::default()
     };
     let err = parse_opencv_yaml(&text, &path, &metres).expect_err("mm as m");
-    assert!(err.to_string().contains("millimetres"), "{err}");
+    assert!(crate::chain::chain(&err).contains("millimetres"), "{err}");
 }
 
 #[test]
@@ -279,7 +279,7 @@ fn opencv_image_size_spellings() {
         };
         parse_opencv_yaml(&opencv_text(keys, &r, t), Path::new("size.yml"), &opts)
             .map(|c| (c.rig.left.width(), c.rig.right.height()))
-            .map_err(|e| e.to_string())
+            .map_err(|e| crate::chain::chain(&e))
     };
     assert_eq!(size_of("imageSize: [ 640, 480 ]\n", None), Ok((640, 480)));
     assert_eq!(size_of("image_size: [ 800, 600 ]\n", None), Ok((800, 600)));
