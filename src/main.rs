@@ -2,12 +2,11 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use flyd::replay::{self, Summary, Timing, TraceRow};
-use flyd_core::engine::{Engine, EngineParams};
-use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd::replay::{self, FrameFeed, PairFeed, ScenarioFeed, Summary};
+use flyd_core::engine::EngineParams;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use flyd::config::{self, CanTarget, DaemonConfig};
 use flyd::daemon::{self, MonotonicClock, Shutdown, hardware};
@@ -137,132 +136,47 @@ fn main() -> ExitCode {
 }
 
 fn replay_command(args: ReplayArgs) -> Result<()> {
-    if let Some(name) = &args.scenario {
-        return replay_scenario(&args, name);
-    }
-    let (Some(left_path), Some(right_path), Some(calib_path)) =
-        (&args.left, &args.right, &args.calib)
-    else {
-        bail!("replay needs --left, --right and --calib (or --scenario)");
-    };
-    let cal = flyd_core::calib::load(calib_path)?;
-    let left = replay::load_rgb(left_path)?;
-    let right = replay::load_rgb(right_path)?;
-    for (name, img, cam) in [
-        ("left", &left, &cal.rig.left),
-        ("right", &right, &cal.rig.right),
-    ] {
-        if img.dimensions() != (cam.width(), cam.height()) {
-            bail!(
-                "{name} image is {}x{} but {} describes a {}x{} camera",
-                img.width(),
-                img.height(),
-                calib_path.display(),
-                cam.width(),
-                cam.height()
-            );
-        }
-    }
     let mut params = EngineParams {
         flies: args.flies,
         seed: args.seed,
         ..EngineParams::default()
     };
-    if let Some((min, max)) = cal.depth_range {
-        params.min_depth = min;
-        params.max_depth = max;
-    }
-    if !cal.has_road {
-        params.roi = None;
-    }
-    let mut engine = Engine::new(&cal.rig, params).context("cannot start the engine")?;
-    let prep = |img: &image::RgbImage| {
-        PreparedImage::from_pixels(img.width(), img.height(), PixelFormat::Rgb8, img.as_raw())
-    };
-    let frame = StereoFrame::new(prep(&left)?, prep(&right)?, 0);
-    let generations = args.generations.unwrap_or(50);
-    let mut times = Vec::with_capacity(generations as usize);
-    let mut trace = Vec::with_capacity(generations as usize);
-    for _ in 0..generations {
-        let t = Instant::now();
-        let stats = engine.step(&frame)?;
-        let elapsed = t.elapsed();
-        times.push(elapsed);
-        trace.push(TraceRow {
-            frame: 0,
-            stats,
-            elapsed,
-        });
-    }
-    replay::write_outputs(&args.out, &engine, &left, &trace)?;
-    print_summary(&engine, 1, &mut times, &args.out, None)
-}
-
-fn replay_scenario(args: &ReplayArgs, name: &str) -> Result<()> {
-    let scenario = hw_mock::Scenario::by_name(name).with_context(|| {
-        format!(
-            "unknown scenario '{name}' (known: {})",
-            hw_mock::Scenario::names().join(", ")
-        )
-    })?;
-    let k = args.generations_per_frame.max(1);
-    let frames = scenario.frame_count() as u64;
-    let generations = args.generations.unwrap_or(frames * k);
-    let first_obstacle = scenario.first_obstacle_frame();
-    let mut mock = flyd::mock::MockStereo::new(scenario, args.width, args.height)?;
-    let params = EngineParams {
-        flies: args.flies,
-        seed: args.seed,
-        ..EngineParams::default()
-    };
-    let mut engine = Engine::new(mock.rig(), params).context("cannot start the engine")?;
-    let (w, h) = mock.size();
-    let mut frame = StereoFrame::new(
-        PreparedImage::new(w, h)?,
-        PreparedImage::new(w, h)?,
-        u64::MAX,
-    );
-    let mut left_rgb = image::RgbImage::new(w, h);
-    let mut times = Vec::with_capacity(generations as usize);
-    let mut trace = Vec::with_capacity(generations as usize);
-    let mut index = u64::MAX;
-    for g in 0..generations {
-        let wanted = g / k;
-        if wanted != index {
-            index = wanted;
-            let (l, r) = mock.frame(index as u32)?;
-            frame.left.prepare(PixelFormat::Rgb8, l)?;
-            frame.right.prepare(PixelFormat::Rgb8, r)?;
-            frame.id = index;
-            left_rgb.copy_from_slice(l);
+    let (mut feed, generations, per_frame): (Box<dyn FrameFeed>, u64, u64) = if let Some(name) =
+        &args.scenario
+    {
+        let feed = ScenarioFeed::new(name, args.width, args.height)?;
+        let per_frame = args.generations_per_frame.max(1);
+        let generations = args.generations.unwrap_or(feed.frames() * per_frame);
+        (Box::new(feed), generations, per_frame)
+    } else {
+        let (Some(left), Some(right), Some(calib)) = (&args.left, &args.right, &args.calib) else {
+            bail!("replay needs --left, --right and --calib (or --scenario)");
+        };
+        let (feed, cal) = PairFeed::load(left, right, calib)?;
+        if let Some((min, max)) = cal.depth_range {
+            params.min_depth = min;
+            params.max_depth = max;
         }
-        let t = Instant::now();
-        let stats = engine.step(&frame)?;
-        let elapsed = t.elapsed();
-        times.push(elapsed);
-        trace.push(TraceRow {
-            frame: index,
-            stats,
-            elapsed,
-        });
-    }
-    replay::write_outputs(&args.out, &engine, &left_rgb, &trace)?;
+        if !cal.has_road {
+            params.roi = None;
+        }
+        let generations = args.generations.unwrap_or(50);
+        (Box::new(feed), generations, generations)
+    };
+    let run = replay::run(feed.as_mut(), params, generations, per_frame).context("replay")?;
+    replay::write_outputs(&args.out, &run.engine, &run.left, &run.trace)?;
     let decision = flyd_core::decision::DecisionConfig::default();
-    let reaction = first_obstacle.and_then(|f| {
+    let reaction = feed.first_obstacle().and_then(|f| {
         replay::Reaction::of(
-            &trace,
-            u64::from(f),
+            &run.trace,
+            f,
             decision.slow_threshold,
             decision.stop_threshold,
         )
     });
-    print_summary(
-        &engine,
-        index.wrapping_add(1),
-        &mut times,
-        &args.out,
-        reaction,
-    )
+    let summary = Summary::of(&run, &args.out, reaction);
+    println!("{}", serde_json::to_string_pretty(&summary)?);
+    Ok(())
 }
 
 fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {
@@ -292,29 +206,6 @@ fn bench_command(args: BenchArgs) -> Result<()> {
     } else {
         println!("{report}");
     }
-    Ok(())
-}
-
-fn print_summary(
-    engine: &Engine,
-    frames: u64,
-    times: &mut [Duration],
-    out: &std::path::Path,
-    reaction: Option<replay::Reaction>,
-) -> Result<()> {
-    let stats = engine.stats();
-    let summary = Summary {
-        global_warning: stats.global_warning,
-        danger: stats.danger,
-        generations: stats.generation,
-        frames,
-        flies: engine.params().flies,
-        seed: engine.params().seed,
-        time_per_generation: Timing::of(times),
-        out_dir: out.display().to_string(),
-        reaction,
-    };
-    println!("{}", serde_json::to_string_pretty(&summary)?);
     Ok(())
 }
 

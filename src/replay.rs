@@ -13,12 +13,16 @@
 //!
 //! This is a command at the edge: it reads files and the clock; the engine does neither.
 
-use flyd_core::engine::{Engine, GenerationStats, Population};
+use crate::mock::{MockError, MockStereo};
+use flyd_core::calib::{CalibError, Calibration};
+use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats, Population};
+use flyd_core::frame::{FrameError, PixelFormat, PreparedImage, StereoFrame};
+use flyd_core::geometry::StereoRig;
 use image::{GrayImage, Luma, Rgb, RgbImage};
 use serde::Serialize;
 use std::io::Write;
 use std::path::Path;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Number of flies drawn on the overlay, as in the paper's figures.
 pub const OVERLAY_FLIES: usize = 250;
@@ -37,6 +41,206 @@ pub enum ReplayError {
         #[source]
         source: image::ImageError,
     },
+    #[error("calibration")]
+    Calibration(#[from] CalibError),
+    #[error(
+        "{which} image is {got_w}x{got_h} but {calibration} describes a {want_w}x{want_h} camera"
+    )]
+    ImageSize {
+        which: &'static str,
+        calibration: String,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("unknown scenario '{name}' (known: {known})")]
+    UnknownScenario { name: String, known: String },
+    #[error("hw-mock")]
+    Mock(#[from] MockError),
+    #[error("frame")]
+    Frame(#[from] FrameError),
+    #[error("engine")]
+    Engine(#[from] EngineError),
+}
+
+/// Where replayed frames come from.
+pub trait FrameFeed {
+    fn rig(&self) -> &StereoRig;
+    /// How many frames there are.
+    fn frames(&self) -> u64;
+    /// Puts frame `index` into `frame` (prepared) and `left` (the left image as captured, for
+    /// the overlay).
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError>;
+    /// The frame at which the first obstacle appears, when the feed knows it (a scenario).
+    fn first_obstacle(&self) -> Option<u64> {
+        None
+    }
+}
+
+/// One stereo pair, evaluated again and again (the paper's setting).
+pub struct PairFeed {
+    rig: StereoRig,
+    left: RgbImage,
+    right: RgbImage,
+}
+
+impl PairFeed {
+    /// The pair `left`, `right` and its calibration (which must describe their sizes).
+    pub fn load(
+        left: &Path,
+        right: &Path,
+        calibration: &Path,
+    ) -> Result<(Self, Calibration), ReplayError> {
+        let cal = flyd_core::calib::load(calibration)?;
+        let (l, r) = (load_rgb(left)?, load_rgb(right)?);
+        for (which, img, cam) in [("left", &l, &cal.rig.left), ("right", &r, &cal.rig.right)] {
+            if img.dimensions() != (cam.width(), cam.height()) {
+                return Err(ReplayError::ImageSize {
+                    which,
+                    calibration: calibration.display().to_string(),
+                    got_w: img.width(),
+                    got_h: img.height(),
+                    want_w: cam.width(),
+                    want_h: cam.height(),
+                });
+            }
+        }
+        let feed = Self {
+            rig: cal.rig.clone(),
+            left: l,
+            right: r,
+        };
+        Ok((feed, cal))
+    }
+}
+
+impl FrameFeed for PairFeed {
+    fn rig(&self) -> &StereoRig {
+        &self.rig
+    }
+
+    fn frames(&self) -> u64 {
+        1
+    }
+
+    fn load(
+        &mut self,
+        _: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        frame.left.prepare(PixelFormat::Rgb8, self.left.as_raw())?;
+        frame
+            .right
+            .prepare(PixelFormat::Rgb8, self.right.as_raw())?;
+        left.clone_from(&self.left);
+        Ok(())
+    }
+}
+
+/// A hw-mock scenario rendered through the mock rig.
+pub struct ScenarioFeed {
+    mock: MockStereo,
+    first_obstacle: Option<u64>,
+}
+
+impl ScenarioFeed {
+    pub fn new(name: &str, width: u32, height: u32) -> Result<Self, ReplayError> {
+        let scenario =
+            hw_mock::Scenario::by_name(name).ok_or_else(|| ReplayError::UnknownScenario {
+                name: name.to_string(),
+                known: hw_mock::Scenario::names().join(", "),
+            })?;
+        let first_obstacle = scenario.first_obstacle_frame().map(u64::from);
+        Ok(Self {
+            mock: MockStereo::new(scenario, width, height)?,
+            first_obstacle,
+        })
+    }
+}
+
+impl FrameFeed for ScenarioFeed {
+    fn rig(&self) -> &StereoRig {
+        self.mock.rig()
+    }
+
+    fn frames(&self) -> u64 {
+        self.mock.scenario().frame_count() as u64
+    }
+
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        let index = u32::try_from(index).unwrap_or(u32::MAX);
+        let (l, r) = self.mock.frame(index)?;
+        frame.left.prepare(PixelFormat::Rgb8, l)?;
+        frame.right.prepare(PixelFormat::Rgb8, r)?;
+        left.copy_from_slice(l);
+        Ok(())
+    }
+
+    fn first_obstacle(&self) -> Option<u64> {
+        self.first_obstacle
+    }
+}
+
+/// A finished replay: the engine as it ended, and one trace row per generation.
+pub struct Replay {
+    pub engine: Engine,
+    pub trace: Vec<TraceRow>,
+    /// The left image of the last frame.
+    pub left: RgbImage,
+    /// Frames shown.
+    pub frames: u64,
+}
+
+/// Runs `generations` generations of an engine with `params` on `feed`, a new frame every
+/// `per_frame` generations (the last frame stays once the feed has no more).
+pub fn run(
+    feed: &mut dyn FrameFeed,
+    params: EngineParams,
+    generations: u64,
+    per_frame: u64,
+) -> Result<Replay, ReplayError> {
+    let mut engine = Engine::new(feed.rig(), params)?;
+    let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
+    let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
+    let mut frame = StereoFrame::new(PreparedImage::new(w, h)?, PreparedImage::new(rw, rh)?, 0);
+    let mut left = RgbImage::new(w, h);
+    let per_frame = per_frame.max(1);
+    let mut trace = Vec::with_capacity(usize::try_from(generations).unwrap_or(0));
+    let mut index = None;
+    for _ in 0..generations {
+        let wanted = (trace.len() as u64 / per_frame).min(feed.frames().saturating_sub(1));
+        if index != Some(wanted) {
+            feed.load(wanted, &mut frame, &mut left)?;
+            frame.id = wanted;
+            index = Some(wanted);
+        }
+        let t = Instant::now();
+        let stats = engine.step(&frame)?;
+        let elapsed = t.elapsed();
+        trace.push(TraceRow {
+            frame: wanted,
+            stats,
+            elapsed,
+        });
+    }
+    Ok(Replay {
+        engine,
+        trace,
+        left,
+        frames: index.map_or(0, |i| i + 1),
+    })
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
@@ -69,6 +273,25 @@ impl Timing {
             p95_us: at(0.95),
             min_us: us(samples[0]),
             max_us: us(samples[samples.len() - 1]),
+        }
+    }
+}
+
+impl Summary {
+    /// The summary of `replay`, written to `out`.
+    pub fn of(replay: &Replay, out: &Path, reaction: Option<Reaction>) -> Self {
+        let stats = replay.engine.stats();
+        let mut times: Vec<Duration> = replay.trace.iter().map(|r| r.elapsed).collect();
+        Self {
+            global_warning: stats.global_warning,
+            danger: stats.danger,
+            generations: stats.generation,
+            frames: replay.frames,
+            flies: replay.engine.params().flies,
+            seed: replay.engine.params().seed,
+            time_per_generation: Timing::of(&mut times),
+            out_dir: out.display().to_string(),
+            reaction,
         }
     }
 }
