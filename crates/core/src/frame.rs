@@ -109,11 +109,6 @@ pub enum FrameError {
     BadDimensions { width: u32, height: u32 },
 }
 
-dispatch! {
-    fn prepare_on(image: &mut PreparedImage, format: PixelFormat, pixels: &[u8]);
-    up to Avx2 => PreparedImage::prepare_at
-}
-
 /// An image ready for fitness evaluation (see the module docs for the layout).
 #[derive(Debug, Clone)]
 pub struct PreparedImage {
@@ -234,21 +229,17 @@ impl PreparedImage {
         Ok(())
     }
 
-    /// [`Self::prepare`]'s work on a chosen instruction set (all give the same bytes): with
-    /// AVX2 the compiler vectorises its loops 32 bytes wide and can shuffle the 3-byte pixels
-    /// into the 4-byte layout.
-    fn prepare_on(&mut self, isa: Isa, format: PixelFormat, pixels: &[u8]) {
-        prepare_on(isa, self, format, pixels);
-    }
-
-    #[inline(always)]
-    fn prepare_at(_: Level, image: &mut Self, format: PixelFormat, pixels: &[u8]) {
-        image.prepare_with(format, pixels);
+    dispatch! {
+        /// [`Self::prepare`]'s work on a chosen instruction set (all give the same bytes):
+        /// with AVX2 the compiler vectorises its loops 32 bytes wide and can shuffle the
+        /// 3-byte pixels into the 4-byte layout.
+        fn prepare_on(&mut self: PreparedImage, format: PixelFormat, pixels: &[u8]);
+        isa = isa, up to Avx2 => PreparedImage::prepare_with
     }
 
     /// Colour normalisation, luma, Sobel, border and block means. `pixels` has the right size.
     #[inline(always)]
-    fn prepare_with(&mut self, format: PixelFormat, pixels: &[u8]) {
+    fn prepare_with(&mut self, _: Level, format: PixelFormat, pixels: &[u8]) {
         let (w, h) = (self.width, self.height);
         let [n0, n1, n2] = self.normalisation(format, pixels);
         // Colour (normalised) and luma.

@@ -87,22 +87,32 @@ impl Isa {
     }
 }
 
-/// Defines a function that runs an `#[inline(always)]` body compiled for an [`Isa`]'s level.
+/// Defines a function (or a method) that runs an `#[inline(always)]` body compiled for an
+/// [`Isa`]'s level.
 ///
 /// ```text
 /// dispatch! {
 ///     /// Docs of the dispatcher.
-///     pub(crate) fn apply_on(grid: &mut Grid, pop: &mut Population);
-///     up to Avx512 => Grid::apply_at
+///     pub(crate) fn gather_flags(flags: &[bool], set: bool) -> usize;
+///     up to Avx512 => gather_flags_at
+/// }
+/// impl Grid {
+///     dispatch! {
+///         pub(crate) fn apply_on(&mut self: Grid, pop: &mut Population);
+///         isa = isa, up to Avx512 => Grid::apply
+///     }
 /// }
 /// ```
 ///
-/// defines `apply_on(isa: Isa, grid, pop)`, which calls `Grid::apply_at(level, grid, pop)`
-/// inside a `#[target_feature]` function of `isa`'s level (capped at the level named after
-/// `up to`: `Avx2` for loops that have no AVX-512 code), or directly on the baseline. The body
-/// takes the level first; it is a constant in each copy, so a `match` on it picks a
-/// level-specific kernel at compile time. Generic parameters go in brackets after the name
-/// (`fn compare[const W: usize](...)`).
+/// The first defines `gather_flags(isa: Isa, flags, set)`, which calls
+/// `gather_flags_at(level, flags, set)`; the second a method `apply_on(&mut self, isa: Isa,
+/// pop)` (or, with `isa = self.isa`, one that takes the instruction set from `self`), which
+/// calls `Grid::apply(self, level, pop)`. The body runs inside a `#[target_feature]` function
+/// of the instruction set's level (capped at the level after `up to`: `Avx2` for loops with
+/// no AVX-512 code), or directly on the baseline; the level it gets is a constant in each
+/// copy, so a `match` on it picks a level-specific kernel at compile time. Generic parameters
+/// the per-level functions need go in brackets after the name (`fn compare[const W: usize]`;
+/// for a method, those of its `impl`, which the method itself already has).
 ///
 /// The per-level functions take the arguments as their own parameters (a closure capturing
 /// them would hide from the optimiser that the references do not alias: measured, the
@@ -110,65 +120,101 @@ impl Isa {
 /// stays a function of its own even when dispatched from inside another one (the window pass,
 /// inlined into the whole evaluation, lost half its registers to the stack).
 macro_rules! dispatch {
+    // A free function.
     (
         $(#[$meta:meta])*
         $vis:vis fn $name:ident $([$($gen:tt)*])? ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;
-        up to Avx512 => $body:path
+        up to $cap:ident => $body:path
     ) => {
         $(#[$meta])*
         $vis fn $name $(<$($gen)*>)? (isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
-            /// # Safety
-            /// The CPU must have AVX2, BMI1 and BMI2.
-            #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx2,bmi1,bmi2")]
-            #[inline(never)]
-            unsafe fn avx2 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
-                $body($crate::isa::Level::Avx2, $($arg),*)
-            }
+            $crate::isa::dispatch!(@levels isa, $cap, $body, [$($($gen)*)?],
+                [$($arg: $ty),*], [], [$($arg),*], [$($arg),*], [], [$($ret)?])
+        }
+    };
+    // A method on `&self` or `&mut self`, the instruction set an argument or an expression.
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])? (&$s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?)
+            $(-> $ret:ty)?;
+        isa = $isa:ident, up to $cap:ident => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name(&$s, $isa: $crate::isa::Isa $(, $arg: $ty)*) $(-> $ret)? {
+            $crate::isa::dispatch!(@levels $isa, $cap, $body, [$($($gen)*)?],
+                [this: &$this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
+                [$($ret)?])
+        }
+    };
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])?
+            (&mut $s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?) $(-> $ret:ty)?;
+        isa = $isa:ident, up to $cap:ident => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name(&mut $s, $isa: $crate::isa::Isa $(, $arg: $ty)*) $(-> $ret)? {
+            $crate::isa::dispatch!(@levels $isa, $cap, $body, [$($($gen)*)?],
+                [this: &mut $this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
+                [$($ret)?])
+        }
+    };
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])? (&$s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?)
+            $(-> $ret:ty)?;
+        isa = $isa:expr, up to $cap:ident => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name(&$s $(, $arg: $ty)*) $(-> $ret)? {
+            let isa: $crate::isa::Isa = $isa;
+            $crate::isa::dispatch!(@levels isa, $cap, $body, [$($($gen)*)?],
+                [this: &$this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
+                [$($ret)?])
+        }
+    };
+    // The per-level functions and the match: `params` are the per-level functions' parameters,
+    // `pre` what they pass to the body before the level, `args` after it; `call` what the
+    // match passes to them, `outer` what it passes to the body before the level on the
+    // baseline.
+    (
+        @levels $isa:ident, $cap:ident, $body:path, [$($gen:tt)*],
+        [$($p:ident: $pt:ty),*], [$($pre:ident)?], [$($a:ident),*], [$($c:expr),*],
+        [$($outer:expr)?], [$($ret:ty)?]
+    ) => {{
+        /// # Safety
+        /// The CPU must have AVX2, BMI1 and BMI2.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,bmi1,bmi2")]
+        #[inline(never)]
+        unsafe fn avx2<$($gen)*>($($p: $pt),*) $(-> $ret)? {
+            $body($($pre,)? $crate::isa::Level::Avx2 $(, $a)*)
+        }
+        $crate::isa::dispatch!(@if $cap {
             /// # Safety
             /// The CPU must have AVX2, BMI1, BMI2 and AVX-512 F/BW/VL.
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
             #[inline(never)]
-            unsafe fn avx512 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
-                $body($crate::isa::Level::Avx512, $($arg),*)
+            unsafe fn avx512<$($gen)*>($($p: $pt),*) $(-> $ret)? {
+                $body($($pre,)? $crate::isa::Level::Avx512 $(, $a)*)
             }
-            match isa.level() {
-                // SAFETY: an `Isa` at this level proves the CPU has its features (`isa.rs`).
-                #[cfg(target_arch = "x86_64")]
-                $crate::isa::Level::Avx512 => unsafe { avx512($($arg),*) },
-                // SAFETY: as above.
-                #[cfg(target_arch = "x86_64")]
-                $crate::isa::Level::Avx2 => unsafe { avx2($($arg),*) },
-                _ => $body($crate::isa::Level::Baseline, $($arg),*),
-            }
-        }
-    };
-    (
-        $(#[$meta:meta])*
-        $vis:vis fn $name:ident $([$($gen:tt)*])? ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;
-        up to Avx2 => $body:path
-    ) => {
-        $(#[$meta])*
-        $vis fn $name $(<$($gen)*>)? (isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
-            /// # Safety
-            /// The CPU must have AVX2, BMI1 and BMI2.
+        });
+        match $isa.level() {
             #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx2,bmi1,bmi2")]
-            #[inline(never)]
-            unsafe fn avx2 $(<$($gen)*>)? ($($arg: $ty),*) $(-> $ret)? {
-                $body($crate::isa::Level::Avx2, $($arg),*)
-            }
-            match isa.level() {
-                // SAFETY: an `Isa` at AVX2 or above proves the CPU has AVX2, BMI1 and BMI2.
-                #[cfg(target_arch = "x86_64")]
-                $crate::isa::Level::Avx2 | $crate::isa::Level::Avx512 => unsafe {
-                    avx2($($arg),*)
-                },
-                _ => $body($crate::isa::Level::Baseline, $($arg),*),
-            }
+            $crate::isa::Level::Avx512 => $crate::isa::dispatch!(@call512 $cap, ($($c),*)),
+            // SAFETY: an `Isa` at AVX2 proves the CPU has AVX2, BMI1 and BMI2 (`isa.rs`).
+            #[cfg(target_arch = "x86_64")]
+            $crate::isa::Level::Avx2 => unsafe { avx2($($c),*) },
+            _ => $body($($outer,)? $crate::isa::Level::Baseline $(, $a)*),
         }
-    };
+    }};
+    (@if Avx512 { $($t:tt)* }) => { $($t)* };
+    (@if Avx2 { $($t:tt)* }) => {};
+    // SAFETY: an `Isa` at AVX-512 proves the CPU has AVX-512 F/BW/VL, AVX2, BMI1 and BMI2.
+    (@call512 Avx512, ($($c:expr),*)) => { unsafe { avx512($($c),*) } };
+    // SAFETY: as above (a loop capped at AVX2 runs its AVX2 code there).
+    (@call512 Avx2, ($($c:expr),*)) => { unsafe { avx2($($c),*) } };
 }
 pub(crate) use dispatch;
 

@@ -39,6 +39,17 @@ use std::ops::Range;
 /// ahead), which also keeps it inside the CAN signal's range (0.001 resolution, up to 65.5).
 pub const FITNESS_SCALE: f32 = 0.01;
 
+/// An evaluation's arguments besides the kernel: the cameras, the flies and which of them, the
+/// sharing grid (for the flies' cells), the scratch.
+type Args<'a> = (
+    &'a Projector,
+    &'a Projector,
+    &'a mut Population,
+    Range<usize>,
+    &'a Grid,
+    &'a mut Scratch,
+);
+
 pub(crate) struct Kernel<'a> {
     left: &'a PreparedImage,
     right: &'a PreparedImage,
@@ -89,38 +100,27 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// Evaluates flies `range` of `pop`: projections, sharing cells (of `grid`) and `raw_fitness`.
-    /// Returns how many of them both cameras see, and how many of those match (see [`Matches`]).
-    pub(crate) fn evaluate(
-        &self,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
-    ) -> Matches {
-        evaluate_on(self.isa, self, left, right, pop, range, grid, scratch)
+    dispatch! {
+        /// Evaluates flies `range` of `pop`: projections, sharing cells (of `grid`) and
+        /// `raw_fitness`. Returns how many of them both cameras see, and how many of those
+        /// match (see [`Matches`]).
+        pub(crate) fn evaluate(
+            &self: Kernel<'_>,
+            left: &Projector,
+            right: &Projector,
+            pop: &mut Population,
+            range: Range<usize>,
+            grid: &Grid,
+            scratch: &mut Scratch,
+        ) -> Matches;
+        isa = self.isa, up to Avx512 => Kernel::evaluate_at
     }
 
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn evaluate_at(
-        _: Level,
-        kernel: &Self,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
-    ) -> Matches {
-        kernel.evaluate_all(left, right, pop, range, grid, scratch)
-    }
-
-    #[inline(always)]
-    fn evaluate_all(
         &self,
+        level: Level,
         left: &Projector,
         right: &Projector,
         pop: &mut Population,
@@ -128,26 +128,23 @@ impl<'a> Kernel<'a> {
         grid: &Grid,
         scratch: &mut Scratch,
     ) -> Matches {
+        let args = (left, right, pop, range, grid, scratch);
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1>(left, right, pop, range, grid, scratch),
-            (1, _) => self.evaluate_with::<16, 1, 3>(left, right, pop, range, grid, scratch),
-            (2, 1) => self.evaluate_with::<32, 2, 1>(left, right, pop, range, grid, scratch),
-            (2, _) => self.evaluate_with::<32, 2, 3>(left, right, pop, range, grid, scratch),
-            (_, 1) => self.evaluate_with::<32, 3, 1>(left, right, pop, range, grid, scratch),
-            (_, _) => self.evaluate_with::<32, 3, 3>(left, right, pop, range, grid, scratch),
+            (1, 1) => self.evaluate_with::<16, 1, 1>(level, args),
+            (1, _) => self.evaluate_with::<16, 1, 3>(level, args),
+            (2, 1) => self.evaluate_with::<32, 2, 1>(level, args),
+            (2, _) => self.evaluate_with::<32, 2, 3>(level, args),
+            (_, 1) => self.evaluate_with::<32, 3, 1>(level, args),
+            (_, _) => self.evaluate_with::<32, 3, 3>(level, args),
         }
     }
 
     #[inline(always)]
     fn evaluate_with<const W: usize, const R: usize, const C: usize>(
         &self,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
+        level: Level,
+        (left, right, pop, range, grid, scratch): Args<'_>,
     ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
         let mask16 = &const { mask16::<W>(R, C) };
@@ -156,7 +153,7 @@ impl<'a> Kernel<'a> {
         let (ls, rs) = (self.left.stride(), self.right.stride());
         let rows = 2 * R + 1;
         let row_step = self.row_step;
-        pop.project(left, right, range.clone());
+        pop.project(level, left, right, range.clone());
         let roi = self.roi.map(|roi| {
             (
                 roi.min_height as f32,
@@ -241,20 +238,6 @@ impl<'a> Kernel<'a> {
         }
         m
     }
-}
-
-dispatch! {
-    #[allow(clippy::too_many_arguments)]
-    fn evaluate_on(
-        kernel: &Kernel<'_>,
-        left: &Projector,
-        right: &Projector,
-        pop: &mut Population,
-        range: Range<usize>,
-        grid: &Grid,
-        scratch: &mut Scratch,
-    ) -> Matches;
-    up to Avx512 => Kernel::evaluate_at
 }
 
 /// Per-fly intermediate values of an evaluation, sized once (no allocation per generation).

@@ -1,7 +1,7 @@
 //! The flies, structure-of-arrays: each hot loop streams over one or two fields.
 
 use super::projector::Projector;
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Level, dispatch};
 use std::ops::Range;
 
 /// The flies, structure-of-arrays: the hot loops stream over one field at a time.
@@ -68,7 +68,13 @@ impl Population {
     /// Projects flies `r` into both images (NaN where a fly is outside one). Inlined, so the
     /// AVX2 evaluation compiles it 8 flies wide.
     #[inline(always)]
-    pub(super) fn project(&mut self, left: &Projector, right: &Projector, r: Range<usize>) {
+    pub(super) fn project(
+        &mut self,
+        _: Level,
+        left: &Projector,
+        right: &Projector,
+        r: Range<usize>,
+    ) {
         let (x, y, z) = (&self.x[r.clone()], &self.y[r.clone()], &self.z[r.clone()]);
         left.project_batch(
             x,
@@ -80,21 +86,16 @@ impl Population {
         right.project_batch(x, y, z, &mut self.u_right[r.clone()], &mut self.v_right[r]);
     }
 
-    /// [`Population::project`] on instruction set `isa` (the same bits on each; AVX2 projects
-    /// 8 flies at a time instead of 4).
-    pub(super) fn project_on(
-        &mut self,
-        isa: Isa,
-        left: &Projector,
-        right: &Projector,
-        r: Range<usize>,
-    ) {
-        project_on(isa, self, left, right, r);
-    }
-
-    #[inline(always)]
-    fn project_at(_: Level, pop: &mut Self, left: &Projector, right: &Projector, r: Range<usize>) {
-        pop.project(left, right, r);
+    dispatch! {
+        /// [`Population::project`] on instruction set `isa` (the same bits on each; AVX2
+        /// projects 8 flies at a time instead of 4).
+        pub(super) fn project_on(
+            &mut self: Population,
+            left: &Projector,
+            right: &Projector,
+            r: Range<usize>,
+        );
+        isa = isa, up to Avx2 => Population::project
     }
 
     /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).
@@ -104,9 +105,4 @@ impl Population {
         idx.truncate(k);
         idx
     }
-}
-
-dispatch! {
-    fn project_on(pop: &mut Population, left: &Projector, right: &Projector, r: Range<usize>);
-    up to Avx2 => Population::project_at
 }

@@ -64,11 +64,6 @@ impl Survival {
     }
 }
 
-dispatch! {
-    fn select_on(sel: &mut Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);
-    up to Avx512 => Selector::select_at
-}
-
 #[derive(Debug, Clone)]
 pub(crate) struct Selector {
     hist: Vec<u32>,
@@ -92,25 +87,15 @@ impl Selector {
         }
     }
 
-    /// [`Selector::select`] compiled for instruction set `isa` (the same flies on each).
-    pub(crate) fn select_on(
-        &mut self,
-        isa: Isa,
-        fitness: &[f32],
-        keep: usize,
-        chosen: &mut [bool],
-    ) {
-        select_on(isa, self, fitness, keep, chosen);
-    }
-
-    #[inline(always)]
-    fn select_at(_: Level, sel: &mut Self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
-        sel.select(fitness, keep, chosen);
+    dispatch! {
+        /// [`Selector::select`] compiled for instruction set `isa` (the same flies on each).
+        pub(crate) fn select_on(&mut self: Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);
+        isa = isa, up to Avx512 => Selector::select
     }
 
     /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.
     #[inline(always)]
-    pub(crate) fn select(&mut self, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+    pub(crate) fn select(&mut self, _: Level, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
         let n = fitness.len().min(chosen.len()).min(self.keys.len());
         let keep = keep.min(n);
         let keys = &mut self.keys[..n];
@@ -232,7 +217,7 @@ mod tests {
                 .collect();
             for keep in [0, 1, 13, 40, 64] {
                 let mut chosen = vec![false; 64];
-                s.select(&fitness, keep, &mut chosen);
+                s.select(Level::Baseline, &fitness, keep, &mut chosen);
                 assert_eq!(
                     chosen,
                     reference(&fitness, keep),

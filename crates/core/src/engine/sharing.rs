@@ -16,7 +16,7 @@
 
 use super::Population;
 use super::fitness::trunc;
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Level, dispatch};
 
 #[derive(Debug, Clone)]
 pub(crate) struct Grid {
@@ -59,15 +59,16 @@ impl Grid {
         (cy * self.cols + cx).min(self.counts.len() as u32 - 1)
     }
 
-    /// [`Grid::apply`] compiled for instruction set `isa` (the same fitness on each).
-    pub(crate) fn apply_on(&mut self, isa: Isa, pop: &mut Population) {
-        apply_on(isa, self, pop);
+    dispatch! {
+        /// [`Grid::apply`] compiled for instruction set `isa` (the same fitness on each).
+        pub(crate) fn apply_on(&mut self: Grid, pop: &mut Population);
+        isa = isa, up to Avx512 => Grid::apply
     }
 
     /// Sets `fitness` from `raw_fitness` and the cells the evaluation assigned (`u32::MAX` for a
     /// fly outside an image: fitness 0).
     #[inline(always)]
-    pub(crate) fn apply(&mut self, pop: &mut Population) {
+    pub(crate) fn apply(&mut self, _: Level, pop: &mut Population) {
         self.counts.fill(0);
         for &cell in &pop.cell {
             if let Some(c) = self.counts.get_mut(cell as usize) {
@@ -83,23 +84,6 @@ impl Grid {
             *f = raw * factor;
         }
     }
-}
-
-dispatch! {
-    fn apply_on(grid: &mut Grid, pop: &mut Population);
-    up to Avx512 => Grid::apply_at
-}
-
-impl Grid {
-    #[inline(always)]
-    fn apply_at(_: Level, grid: &mut Self, pop: &mut Population) {
-        grid.apply(pop);
-    }
-}
-
-dispatch! {
-    fn index_on(mates: &mut Mates, cells: &[u32]);
-    up to Avx512 => Mates::index_at
 }
 
 /// Survivors grouped by sharing cell, for mating restriction: a crossover between two flies on
@@ -124,26 +108,22 @@ impl Mates {
         }
     }
 
-    /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each; with
-    /// AVX-512, the prefix sum 16 cells a vector).
-    pub(crate) fn index_on(&mut self, isa: Isa, cells: &[u32]) {
-        index_on(isa, self, cells);
-    }
-
-    #[inline(always)]
-    fn index_at(level: Level, mates: &mut Self, cells: &[u32]) {
-        match level {
-            // SAFETY: the level is AVX-512 only in `index_on`'s AVX-512 function.
-            #[cfg(target_arch = "x86_64")]
-            Level::Avx512 => mates.index_with(cells, |v| unsafe { prefix_sum_avx512(v) }),
-            _ => mates.index(cells),
-        }
+    dispatch! {
+        /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each; with
+        /// AVX-512, the prefix sum 16 cells a vector).
+        pub(crate) fn index_on(&mut self: Mates, cells: &[u32]);
+        isa = isa, up to Avx512 => Mates::index
     }
 
     /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
     #[inline(always)]
-    pub(crate) fn index(&mut self, cells: &[u32]) {
-        self.index_with(cells, prefix_sum);
+    pub(crate) fn index(&mut self, level: Level, cells: &[u32]) {
+        match level {
+            // SAFETY: the level is AVX-512 only in `index_on`'s AVX-512 function.
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx512 => self.index_with(cells, |v| unsafe { prefix_sum_avx512(v) }),
+            _ => self.index_with(cells, prefix_sum),
+        }
     }
 
     /// [`Mates::index`] with the running sum done by `scan` (an inclusive prefix sum).
@@ -279,6 +259,7 @@ impl Picker<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::isa::Isa;
 
     #[test]
     fn prefix_sums_are_the_same_on_every_instruction_set() {
@@ -331,7 +312,7 @@ mod tests {
                 g.cell(p.u_left[i], p.v_left[i])
             };
         }
-        g.apply(p);
+        g.apply(Level::Baseline, p);
     }
 
     #[test]
@@ -367,7 +348,7 @@ mod tests {
     #[test]
     fn mates_come_from_the_same_cell() {
         let mut m = Mates::new(32, 16, 8, 6); // 4 x 2 cells
-        m.index(&[5, 0, 5, u32::MAX, 7, 5]);
+        m.index(Level::Baseline, &[5, 0, 5, u32::MAX, 7, 5]);
         let pick = |cell, k: u32| m.pick(cell, k.wrapping_mul(0x4000_0000));
         let in5: std::collections::BTreeSet<usize> = (0..4).filter_map(|k| pick(5, k)).collect();
         assert_eq!(in5, [0, 2, 5].into_iter().collect());

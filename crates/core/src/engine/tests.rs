@@ -391,7 +391,8 @@ fn batched_redraw_draws_what_one_by_one_sampling_would() {
             }
         }
         let n = e.pop.len();
-        e.pop.project(&e.setup.left, &e.setup.right, 0..n);
+        e.pop
+            .project(Level::Baseline, &e.setup.left, &e.setup.right, 0..n);
         e
     };
     let from = 40;

@@ -11,12 +11,7 @@
 //! and trust their caller's single bounds check a window.
 
 use crate::frame::BPP;
-use crate::isa::{Isa, Level, dispatch};
-
-/// Instruction-set levels of the evaluation's instantiations (a const parameter).
-const BASE: u8 = 0;
-const AVX2: u8 = 1;
-const AVX512: u8 = 2;
+use crate::isa::{Level, dispatch};
 
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.
 /// A compile-time constant in the kernel, so masking costs one vector AND.
@@ -58,18 +53,6 @@ pub(super) const fn mask16<const W: usize>(radius: usize, channels: usize) -> [i
     m
 }
 
-dispatch! {
-    fn compare_on[const W: usize](
-        windows: &Windows<'_, W>,
-        lo: &[u32],
-        ro: &[u32],
-        ts: &[u16],
-        grads: &mut [i32],
-        ssds: &mut [i32],
-    );
-    up to Avx512 => Windows::compare_at
-}
-
 /// The window comparison of one evaluation (its pass 2): for each fly, the product of the
 /// gradient bytes at the two windows' centres and the SSD of the windows.
 #[derive(Clone, Copy)]
@@ -85,44 +68,26 @@ pub(super) struct Windows<'a, const W: usize> {
 }
 
 impl<const W: usize> Windows<'_, W> {
-    /// [`Windows::run`] on instruction set `isa`, in a function of its own: inlined into the
-    /// whole evaluation, its loop lost half its registers to the stack.
-    pub(super) fn compare(
-        &self,
-        isa: Isa,
-        lo: &[u32],
-        ro: &[u32],
-        ts: &[u16],
-        grads: &mut [i32],
-        ssds: &mut [i32],
-    ) {
-        compare_on(isa, self, lo, ro, ts, grads, ssds);
-    }
-
-    #[inline(always)]
-    fn compare_at(
-        level: Level,
-        windows: &Self,
-        lo: &[u32],
-        ro: &[u32],
-        ts: &[u16],
-        grads: &mut [i32],
-        ssds: &mut [i32],
-    ) {
-        match level {
-            #[cfg(target_arch = "x86_64")]
-            Level::Avx512 => windows.unrolled::<AVX512>(lo, ro, ts, grads, ssds),
-            #[cfg(target_arch = "x86_64")]
-            Level::Avx2 => windows.unrolled::<AVX2>(lo, ro, ts, grads, ssds),
-            _ => windows.unrolled::<BASE>(lo, ro, ts, grads, ssds),
-        }
+    dispatch! {
+        /// [`Windows::run`] on instruction set `isa`, in a function of its own: inlined into
+        /// the whole evaluation, its loop lost half its registers to the stack.
+        pub(super) fn compare[const W: usize](
+            &self: Windows<'_, W>,
+            lo: &[u32],
+            ro: &[u32],
+            ts: &[u16],
+            grads: &mut [i32],
+            ssds: &mut [i32],
+        );
+        isa = isa, up to Avx512 => Windows::unrolled
     }
 
     /// The default neighbourhood's three compared rows get an instantiation of their own
     /// (rows and prefetches fully unrolled).
     #[inline(always)]
-    fn unrolled<const SIMD: u8>(
+    fn unrolled(
         &self,
+        level: Level,
         lo: &[u32],
         ro: &[u32],
         ts: &[u16],
@@ -130,8 +95,8 @@ impl<const W: usize> Windows<'_, W> {
         ssds: &mut [i32],
     ) {
         match self.n_rows {
-            3 => Windows { n_rows: 3, ..*self }.run::<SIMD>(lo, ro, ts, grads, ssds),
-            _ => self.run::<SIMD>(lo, ro, ts, grads, ssds),
+            3 => Windows { n_rows: 3, ..*self }.run(level, lo, ro, ts, grads, ssds),
+            _ => self.run(level, lo, ro, ts, grads, ssds),
         }
     }
 
@@ -139,8 +104,9 @@ impl<const W: usize> Windows<'_, W> {
     /// weights `ts` (/128); `ssds` is -1 for a fly not compared: a window that would reach
     /// past an image's buffer, which is how pass 1 marks a fly outside an image (`lo` MAX).
     #[inline(always)]
-    fn run<const SIMD: u8>(
+    fn run(
         &self,
+        level: Level,
         lo: &[u32],
         ro: &[u32],
         ts: &[u16],
@@ -187,11 +153,11 @@ impl<const W: usize> Windows<'_, W> {
             } else {
                 (r, ts[i])
             };
-            let ssd = match () {
-                // SAFETY: SIMD is AVX512 only in `compare_on`'s AVX-512 function; the windows
-                // lie inside the buffers (checked above against `lneed`, `rneed`).
+            let ssd = match level {
+                // SAFETY: the level is AVX-512 only in `compare`'s AVX-512 function; the
+                // windows lie inside the buffers (checked above against `lneed`, `rneed`).
                 #[cfg(target_arch = "x86_64")]
-                () if SIMD == AVX512 => unsafe {
+                Level::Avx512 => unsafe {
                     avx512::ssd::<W>(
                         ld.as_ptr().add(l),
                         lstep,
@@ -205,7 +171,7 @@ impl<const W: usize> Windows<'_, W> {
                 },
                 // SAFETY: as above, for AVX2.
                 #[cfg(target_arch = "x86_64")]
-                () if SIMD == AVX2 => unsafe {
+                Level::Avx2 => unsafe {
                     avx2::ssd::<W>(
                         ld.as_ptr().add(l),
                         lstep,
@@ -216,7 +182,7 @@ impl<const W: usize> Windows<'_, W> {
                         t,
                     )
                 },
-                () => ssd::<W>(ld, l, lstep, rd, rw, rstep, n_rows, self.mask, t),
+                _ => ssd::<W>(ld, l, lstep, rd, rw, rstep, n_rows, self.mask, t),
             };
             grads[i] = i32::from(gl) * i32::from(gr);
             // At most 255^2 per sample, or the baseline's u32::MAX / 2 = i32::MAX for a
@@ -476,6 +442,7 @@ use row_ssd_portable as row_ssd;
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::isa::Isa;
 
     #[test]
     fn masks_cover_the_window_and_skip_the_gradient() {
