@@ -447,33 +447,27 @@ mod tests {
         let result = write_with_retry(policy, || script.next().unwrap_or(Ok(())), |_| {});
         assert_eq!(result, Ok(()));
 
+        // Writes failing with `errno` under `policy`: the result and how many writes it made.
+        let failing = |policy, errno| {
+            let mut writes = 0;
+            let result = write_with_retry(
+                policy,
+                || Err(os(errno)).inspect_err(|_| writes += 1),
+                |_| {},
+            );
+            (result, writes)
+        };
         // Not transient: no retry.
-        let mut writes = 0;
-        let result = write_with_retry(
-            policy,
-            || {
-                writes += 1;
-                Err(os(libc::ENETDOWN))
-            },
-            |_| {},
+        assert_eq!(
+            failing(policy, libc::ENETDOWN),
+            (Err(BusError::InterfaceDown), 1)
         );
-        assert_eq!((result, writes), (Err(BusError::InterfaceDown), 1));
-
         // max_attempts 0 still writes once.
-        let mut writes = 0;
         let zero = RetryPolicy {
             max_attempts: 0,
             delay: Duration::ZERO,
         };
-        let _ = write_with_retry(
-            zero,
-            || {
-                writes += 1;
-                Err(os(libc::ENOBUFS))
-            },
-            |_| {},
-        );
-        assert_eq!(writes, 1);
+        assert_eq!(failing(zero, libc::ENOBUFS).1, 1);
 
         // EINTR exhausting the attempts is reported as retryable, not as an I/O failure.
         let result = write_with_retry(policy, || Err(os(libc::EINTR)), |_| {});

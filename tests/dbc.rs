@@ -103,60 +103,49 @@ fn counter(v: u8) -> AliveCounter {
     AliveCounter::new(v).expect("counter in range")
 }
 
-fn command_case(msg: CommandMsg, c: u8) -> Case {
+/// The case of `msg` sent with counter `c`: the E2E signals, then `signals`.
+fn case<M: CanMessage>(msg: &M, c: u8, signals: Vec<(&'static str, Want)>) -> Case {
+    let e2e = [("CRC8", Want::Crc), ("AliveCounter", Want::Counter)];
     Case {
-        message: CommandMsg::NAME,
+        message: M::NAME,
         counter: c,
-        data: msg.encode(counter(c)),
-        want: vec![
-            ("CRC8", Want::Crc),
-            ("AliveCounter", Want::Counter),
-            ("Command", Want::Named(msg.command.name())),
-            ("RequestedDecel", Want::Phys(msg.requested_decel)),
-            ("GlobalWarning", Want::Phys(msg.global_warning)),
-            ("CommandReason", Want::Named(msg.reason.name())),
-        ],
+        data: msg.encode_with(counter(c), M::DEFAULT_DATA_ID),
+        want: e2e.into_iter().chain(signals).collect(),
     }
+}
+
+fn command_case(msg: CommandMsg, c: u8) -> Case {
+    let signals = vec![
+        ("Command", Want::Named(msg.command.name())),
+        ("RequestedDecel", Want::Phys(msg.requested_decel)),
+        ("GlobalWarning", Want::Phys(msg.global_warning)),
+        ("CommandReason", Want::Named(msg.reason.name())),
+    ];
+    case(&msg, c, signals)
 }
 
 fn status_case(msg: StatusMsg, c: u8) -> Case {
-    Case {
-        message: StatusMsg::NAME,
-        counter: c,
-        data: msg.encode(counter(c)),
-        want: vec![
-            ("CRC8", Want::Crc),
-            ("AliveCounter", Want::Counter),
-            ("State", Want::Named(msg.state.name())),
-            ("FaultBits", Want::Phys(f64::from(msg.faults.bits()))),
-            (
-                "PerceptionAgeMs",
-                Want::Phys(msg.perception_age.as_millis() as f64),
-            ),
-            ("GenerationsPerSec", Want::Phys(msg.generations_per_sec)),
-            ("CamFpsLeft", Want::Phys(msg.cam_fps_left)),
-            ("CamFpsRight", Want::Phys(msg.cam_fps_right)),
-        ],
-    }
+    let age = msg.perception_age.as_millis() as f64;
+    let signals = vec![
+        ("State", Want::Named(msg.state.name())),
+        ("FaultBits", Want::Phys(f64::from(msg.faults.bits()))),
+        ("PerceptionAgeMs", Want::Phys(age)),
+        ("GenerationsPerSec", Want::Phys(msg.generations_per_sec)),
+        ("CamFpsLeft", Want::Phys(msg.cam_fps_left)),
+        ("CamFpsRight", Want::Phys(msg.cam_fps_right)),
+    ];
+    case(&msg, c, signals)
 }
 
 fn obstacle_case(msg: ObstacleMsg, c: u8) -> Case {
-    Case {
-        message: ObstacleMsg::NAME,
-        counter: c,
-        data: msg.encode(counter(c)),
-        want: vec![
-            ("CRC8", Want::Crc),
-            ("AliveCounter", Want::Counter),
-            (
-                "ObstacleValid",
-                Want::Named(if msg.valid { "VALID" } else { "NO_OBSTACLE" }),
-            ),
-            ("Distance", Want::Phys(msg.distance)),
-            ("Lateral", Want::Phys(msg.lateral)),
-            ("Confidence", Want::Phys(msg.confidence)),
-        ],
-    }
+    let valid = if msg.valid { "VALID" } else { "NO_OBSTACLE" };
+    let signals = vec![
+        ("ObstacleValid", Want::Named(valid)),
+        ("Distance", Want::Phys(msg.distance)),
+        ("Lateral", Want::Phys(msg.lateral)),
+        ("Confidence", Want::Phys(msg.confidence)),
+    ];
+    case(&msg, c, signals)
 }
 
 /// Distinct, representable values for every signal, several frames per message so that no

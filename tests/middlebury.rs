@@ -5,9 +5,10 @@
 //! ground truth at their left pixel (pixels of unknown truth excluded), and those 250 flies
 //! occupy at least 50 distinct 16x16-pixel cells of the left image.
 
+mod util;
+
 use flyd_core::dataset::read_pfm;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 const BEST: usize = 250;
 const MIN_WITHIN_1PX: f64 = 0.85;
@@ -27,27 +28,21 @@ fn fixtures() -> PathBuf {
 fn replay(set: &str, calib: &str) -> Vec<Fly> {
     let dir = fixtures().join(set);
     let out = tempfile::tempdir().expect("tempdir");
-    let status = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .args(["replay", "--generations", "50", "--flies", "5000", "--left"])
-        .arg(dir.join("im0.png"))
-        .arg("--right")
-        .arg(dir.join("im1.png"))
-        .arg("--calib")
-        .arg(dir.join(calib))
-        .arg("--out")
-        .arg(out.path())
-        .output()
-        .expect("run flyd");
-    assert!(
-        status.status.success(),
-        "flyd replay failed: {}",
-        String::from_utf8_lossy(&status.stderr)
-    );
+    let mut args: Vec<std::ffi::OsString> = ["replay", "--generations", "50", "--flies", "5000"]
+        .map(Into::into)
+        .into();
+    for (flag, path) in [
+        ("--left", dir.join("im0.png")),
+        ("--right", dir.join("im1.png")),
+        ("--calib", dir.join(calib)),
+        ("--out", out.path().to_path_buf()),
+    ] {
+        args.extend([flag.into(), path.into()]);
+    }
+    let summary = util::flyd_json(args);
     for file in ["flies.csv", "overlay.png", "warnings.png", "trace.csv"] {
         assert!(out.path().join(file).exists(), "{file} missing");
     }
-    let summary: serde_json::Value =
-        serde_json::from_slice(&status.stdout).expect("JSON summary on stdout");
     assert_eq!(summary["generations"], 50);
     let csv = std::fs::read_to_string(out.path().join("flies.csv")).expect("flies.csv");
     let mut lines = csv.lines();

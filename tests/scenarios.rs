@@ -6,8 +6,9 @@
 //!
 //! The figures themselves (over many seeds) are in README "Figures"; these are guards.
 
+mod util;
+
 use std::path::Path;
-use std::process::Command;
 
 /// Runs `flyd replay --scenario NAME ...` into a temporary directory; returns the JSON summary
 /// and the global warning of every generation (trace.csv).
@@ -18,19 +19,20 @@ fn replay(scenario: &str, size: (u32, u32), seed: u64) -> (serde_json::Value, Ve
     ));
     let (w, h) = (size.0.to_string(), size.1.to_string());
     let seed = seed.to_string();
-    let output = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .args(["replay", "--scenario", scenario, "--seed", &seed])
-        .args(["--width", &w, "--height", &h, "--out"])
-        .arg(&out)
-        .output()
-        .expect("run flyd");
-    assert!(
-        output.status.success(),
-        "flyd replay --scenario {scenario} failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let summary: serde_json::Value =
-        serde_json::from_slice(&output.stdout).expect("JSON summary on stdout");
+    let out_dir = out.display().to_string();
+    let summary = util::flyd_json([
+        "replay",
+        "--scenario",
+        scenario,
+        "--seed",
+        &seed,
+        "--width",
+        &w,
+        "--height",
+        &h,
+        "--out",
+        &out_dir,
+    ]);
     let warnings = read_warnings(&out.join("trace.csv"));
     std::fs::remove_dir_all(&out).ok();
     (summary, warnings)

@@ -218,19 +218,48 @@ fn ycbcr_to_rgb(y: u8, cb: u8, cr: u8) -> [u8; 3] {
     ]
 }
 
-/// YUYV (rows `stride` bytes apart) to packed RGB8 in `dst` (`width * height * 3` bytes).
-pub fn yuyv_to_rgb(
-    src: &[u8],
-    width: usize,
-    height: usize,
-    stride: usize,
-    dst: &mut [u8],
-) -> Result<(), ConvertError> {
-    let row = check_uncompressed(CaptureFormat::Yuyv, src, width, height, stride)?;
-    check_output(dst, width * height * 3)?;
-    for (y, out_row) in dst.chunks_exact_mut(width * 3).enumerate() {
-        let in_row = &src[y * stride..y * stride + row];
-        for (yuyv, rgb) in in_row.chunks_exact(4).zip(out_row.chunks_exact_mut(6)) {
+/// Where an uncompressed frame's pixels are: `width` x `height`, rows `stride` bytes apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout {
+    pub width: usize,
+    pub height: usize,
+    pub stride: usize,
+}
+
+impl Layout {
+    pub fn new(width: usize, height: usize, stride: usize) -> Self {
+        Self {
+            width,
+            height,
+            stride,
+        }
+    }
+
+    /// The rows of `src`, a `format` frame of this layout (checked), each with the row of
+    /// `dst` it converts to, `out_bpp` bytes a pixel (checked: `dst` holds exactly the image).
+    fn rows<'a>(
+        self,
+        format: CaptureFormat,
+        src: &'a [u8],
+        dst: &'a mut [u8],
+        out_bpp: usize,
+    ) -> Result<impl Iterator<Item = (&'a [u8], &'a mut [u8])>, ConvertError> {
+        let Layout {
+            width,
+            height,
+            stride,
+        } = self;
+        let row = check_uncompressed(format, src, width, height, stride)?;
+        check_output(dst, width * height * out_bpp)?;
+        let rows = dst.chunks_exact_mut((width * out_bpp).max(1)).enumerate();
+        Ok(rows.map(move |(y, out)| (&src[y * stride..y * stride + row], out)))
+    }
+}
+
+/// YUYV to packed RGB8 in `dst` (`width * height * 3` bytes).
+pub fn yuyv_to_rgb(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), ConvertError> {
+    for (input, output) in layout.rows(CaptureFormat::Yuyv, src, dst, 3)? {
+        for (yuyv, rgb) in input.chunks_exact(4).zip(output.chunks_exact_mut(6)) {
             let (y0, u, y1, v) = (yuyv[0], yuyv[1], yuyv[2], yuyv[3]);
             rgb[0..3].copy_from_slice(&ycbcr_to_rgb(y0, u, v));
             rgb[3..6].copy_from_slice(&ycbcr_to_rgb(y1, u, v));
@@ -240,18 +269,9 @@ pub fn yuyv_to_rgb(
 }
 
 /// YUYV to grey: the Y bytes as they are.
-pub fn yuyv_to_grey(
-    src: &[u8],
-    width: usize,
-    height: usize,
-    stride: usize,
-    dst: &mut [u8],
-) -> Result<(), ConvertError> {
-    let row = check_uncompressed(CaptureFormat::Yuyv, src, width, height, stride)?;
-    check_output(dst, width * height)?;
-    for (y, out_row) in dst.chunks_exact_mut(width).enumerate() {
-        let in_row = &src[y * stride..y * stride + row];
-        for (pair, out) in in_row.chunks_exact(4).zip(out_row.chunks_exact_mut(2)) {
+pub fn yuyv_to_grey(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), ConvertError> {
+    for (input, output) in layout.rows(CaptureFormat::Yuyv, src, dst, 1)? {
+        for (pair, out) in input.chunks_exact(4).zip(output.chunks_exact_mut(2)) {
             out[0] = pair[0];
             out[1] = pair[2];
         }
@@ -260,100 +280,25 @@ pub fn yuyv_to_grey(
 }
 
 /// GREY with a stride to packed grey.
-pub fn grey_copy(
-    src: &[u8],
-    width: usize,
-    height: usize,
-    stride: usize,
-    dst: &mut [u8],
-) -> Result<(), ConvertError> {
-    let row = check_uncompressed(CaptureFormat::Grey, src, width, height, stride)?;
-    check_output(dst, width * height)?;
-    for (y, out_row) in dst.chunks_exact_mut(width).enumerate() {
-        out_row.copy_from_slice(&src[y * stride..y * stride + row]);
+pub fn grey_copy(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), ConvertError> {
+    for (input, output) in layout.rows(CaptureFormat::Grey, src, dst, 1)? {
+        output.copy_from_slice(input);
     }
     Ok(())
 }
 
 // --- MJPEG -------------------------------------------------------------------------------------
 
-/// The Huffman tables of ITU-T T.81 Annex K.3 (Tables K.3 to K.6): (class and id, code counts
-/// per length 1..=16, symbols). UVC MJPEG frames that carry no DHT segment are coded with these
-/// (the AVI1 convention).
-const STD_DC_LUMA_BITS: [u8; 16] = [0, 1, 5, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0];
-const STD_DC_CHROMA_BITS: [u8; 16] = [0, 3, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0];
-const STD_DC_VALUES: [u8; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11];
-const STD_AC_LUMA_BITS: [u8; 16] = [0, 2, 1, 3, 3, 2, 4, 3, 5, 5, 4, 4, 0, 0, 1, 0x7d];
-#[rustfmt::skip]
-const STD_AC_LUMA_VALUES: [u8; 162] = [
-    0x01, 0x02, 0x03, 0x00, 0x04, 0x11, 0x05, 0x12, 0x21, 0x31, 0x41, 0x06, 0x13, 0x51, 0x61, 0x07,
-    0x22, 0x71, 0x14, 0x32, 0x81, 0x91, 0xa1, 0x08, 0x23, 0x42, 0xb1, 0xc1, 0x15, 0x52, 0xd1, 0xf0,
-    0x24, 0x33, 0x62, 0x72, 0x82, 0x09, 0x0a, 0x16, 0x17, 0x18, 0x19, 0x1a, 0x25, 0x26, 0x27, 0x28,
-    0x29, 0x2a, 0x34, 0x35, 0x36, 0x37, 0x38, 0x39, 0x3a, 0x43, 0x44, 0x45, 0x46, 0x47, 0x48, 0x49,
-    0x4a, 0x53, 0x54, 0x55, 0x56, 0x57, 0x58, 0x59, 0x5a, 0x63, 0x64, 0x65, 0x66, 0x67, 0x68, 0x69,
-    0x6a, 0x73, 0x74, 0x75, 0x76, 0x77, 0x78, 0x79, 0x7a, 0x83, 0x84, 0x85, 0x86, 0x87, 0x88, 0x89,
-    0x8a, 0x92, 0x93, 0x94, 0x95, 0x96, 0x97, 0x98, 0x99, 0x9a, 0xa2, 0xa3, 0xa4, 0xa5, 0xa6, 0xa7,
-    0xa8, 0xa9, 0xaa, 0xb2, 0xb3, 0xb4, 0xb5, 0xb6, 0xb7, 0xb8, 0xb9, 0xba, 0xc2, 0xc3, 0xc4, 0xc5,
-    0xc6, 0xc7, 0xc8, 0xc9, 0xca, 0xd2, 0xd3, 0xd4, 0xd5, 0xd6, 0xd7, 0xd8, 0xd9, 0xda, 0xe1, 0xe2,
-    0xe3, 0xe4, 0xe5, 0xe6, 0xe7, 0xe8, 0xe9, 0xea, 0xf1, 0xf2, 0xf3, 0xf4, 0xf5, 0xf6, 0xf7, 0xf8,
-    0xf9, 0xfa,
-];
-const STD_AC_CHROMA_BITS: [u8; 16] = [0, 2, 1, 2, 4, 4, 3, 4, 7, 5, 4, 4, 0, 1, 2, 0x77];
-#[rustfmt::skip]
-const STD_AC_CHROMA_VALUES: [u8; 162] = [
-    0x00, 0x01, 0x02, 0x03, 0x11, 0x04, 0x05, 0x21, 0x31, 0x06, 0x12, 0x41, 0x51, 0x07, 0x61, 0x71,
-    0x13, 0x22, 0x32, 0x81, 0x08, 0x14, 0x42, 0x91, 0xa1, 0xb1, 0xc1, 0x09, 0x23, 0x33, 0x52, 0xf0,
-    0x15, 0x62, 0x72, 0xd1, 0x0a, 0x16, 0x24, 0x34, 0xe1, 0x25, 0xf1, 0x17, 0x18, 0x19, 0x1a, 0x26,
-    0x27, 0x28, 0x29, 0x2a, 0x35, 0x36, 0x37, 0x38, 0x39, 0x3a, 0x43, 0x44, 0x45, 0x46, 0x47, 0x48,
-    0x49, 0x4a, 0x53, 0x54, 0x55, 0x56, 0x57, 0x58, 0x59, 0x5a, 0x63, 0x64, 0x65, 0x66, 0x67, 0x68,
-    0x69, 0x6a, 0x73, 0x74, 0x75, 0x76, 0x77, 0x78, 0x79, 0x7a, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87,
-    0x88, 0x89, 0x8a, 0x92, 0x93, 0x94, 0x95, 0x96, 0x97, 0x98, 0x99, 0x9a, 0xa2, 0xa3, 0xa4, 0xa5,
-    0xa6, 0xa7, 0xa8, 0xa9, 0xaa, 0xb2, 0xb3, 0xb4, 0xb5, 0xb6, 0xb7, 0xb8, 0xb9, 0xba, 0xc2, 0xc3,
-    0xc4, 0xc5, 0xc6, 0xc7, 0xc8, 0xc9, 0xca, 0xd2, 0xd3, 0xd4, 0xd5, 0xd6, 0xd7, 0xd8, 0xd9, 0xda,
-    0xe2, 0xe3, 0xe4, 0xe5, 0xe6, 0xe7, 0xe8, 0xe9, 0xea, 0xf2, 0xf3, 0xf4, 0xf5, 0xf6, 0xf7, 0xf8,
-    0xf9, 0xfa,
-];
+/// The DHT segment (marker included) with the four Huffman tables of ITU-T T.81 Annex K.3
+/// (Tables K.3 to K.6, in the order DC luma, AC luma, DC chroma, AC chroma: class and id, code
+/// counts per length 1..=16, symbols). UVC MJPEG frames that carry no DHT segment are coded
+/// with these (the AVI1 convention). Data, not code: the tests check its structure and decode
+/// frames whose own tables were stripped through it.
+pub const STD_DHT_SEGMENT: &[u8; STD_DHT_LEN] = include_bytes!("jpeg_annex_k_dht.bin");
 
 /// Length of the standard DHT segment: marker (2) + length field (2) + 4 x (Tc/Th + 16 counts)
 /// + 12 + 12 + 162 + 162 symbols.
 const STD_DHT_LEN: usize = 4 + 4 * 17 + 12 + 12 + 162 + 162;
-
-const fn push(
-    mut seg: [u8; STD_DHT_LEN],
-    mut at: usize,
-    bytes: &[u8],
-) -> ([u8; STD_DHT_LEN], usize) {
-    let mut i = 0;
-    while i < bytes.len() {
-        seg[at] = bytes[i];
-        at += 1;
-        i += 1;
-    }
-    (seg, at)
-}
-
-const fn build_std_dht() -> [u8; STD_DHT_LEN] {
-    let len = (STD_DHT_LEN - 2) as u16;
-    let seg = [0u8; STD_DHT_LEN];
-    let (seg, at) = push(seg, 0, &[0xFF, 0xC4, (len >> 8) as u8, len as u8]);
-    let (seg, at) = push(seg, at, &[0x00]);
-    let (seg, at) = push(seg, at, &STD_DC_LUMA_BITS);
-    let (seg, at) = push(seg, at, &STD_DC_VALUES);
-    let (seg, at) = push(seg, at, &[0x10]);
-    let (seg, at) = push(seg, at, &STD_AC_LUMA_BITS);
-    let (seg, at) = push(seg, at, &STD_AC_LUMA_VALUES);
-    let (seg, at) = push(seg, at, &[0x01]);
-    let (seg, at) = push(seg, at, &STD_DC_CHROMA_BITS);
-    let (seg, at) = push(seg, at, &STD_DC_VALUES);
-    let (seg, at) = push(seg, at, &[0x11]);
-    let (seg, at) = push(seg, at, &STD_AC_CHROMA_BITS);
-    let (seg, at) = push(seg, at, &STD_AC_CHROMA_VALUES);
-    assert!(at == STD_DHT_LEN);
-    seg
-}
-
-/// The complete DHT segment (marker included) with the four standard tables.
-pub const STD_DHT_SEGMENT: [u8; STD_DHT_LEN] = build_std_dht();
 
 /// Where a DHT segment must be inserted in `jpeg`: `Ok(None)` if it already has Huffman tables
 /// before its first scan, `Ok(Some(offset))` of the SOS marker otherwise. Walks the marker
@@ -449,7 +394,7 @@ impl MjpegDecoder {
             Some(at) => {
                 self.with_dht.clear();
                 self.with_dht.extend_from_slice(&jpeg[..at]);
-                self.with_dht.extend_from_slice(&STD_DHT_SEGMENT);
+                self.with_dht.extend_from_slice(STD_DHT_SEGMENT);
                 self.with_dht.extend_from_slice(&jpeg[at..]);
                 &self.with_dht
             }
@@ -563,13 +508,16 @@ impl FrameConverter {
 
     /// Converts one payload (already cut to `bytesused`) to packed `output` pixels.
     pub fn convert(&mut self, payload: &[u8]) -> Result<&[u8], ConvertError> {
-        let (w, h, s) = (self.width, self.height, self.stride);
+        let layout = Layout::new(self.width, self.height, self.stride);
         let dst = &mut self.pixels;
         match (self.format, self.output) {
-            (CaptureFormat::Yuyv, PixelFormat::Rgb8) => yuyv_to_rgb(payload, w, h, s, dst)?,
-            (CaptureFormat::Yuyv, PixelFormat::Grey8) => yuyv_to_grey(payload, w, h, s, dst)?,
-            (CaptureFormat::Grey, _) => grey_copy(payload, w, h, s, dst)?,
-            (CaptureFormat::Mjpg, output) => self.mjpeg.decode(payload, w, h, output, dst)?,
+            (CaptureFormat::Yuyv, PixelFormat::Rgb8) => yuyv_to_rgb(payload, layout, dst)?,
+            (CaptureFormat::Yuyv, PixelFormat::Grey8) => yuyv_to_grey(payload, layout, dst)?,
+            (CaptureFormat::Grey, _) => grey_copy(payload, layout, dst)?,
+            (CaptureFormat::Mjpg, output) => {
+                let (w, h) = (layout.width, layout.height);
+                self.mjpeg.decode(payload, w, h, output, dst)?
+            }
         }
         Ok(&self.pixels)
     }
@@ -602,7 +550,7 @@ mod tests {
 
     fn check_rgb(y: u8, u: u8, v: u8, expected: [u8; 3]) {
         let mut dst = [0u8; 6];
-        yuyv_to_rgb(&[y, u, y, v], 2, 1, 4, &mut dst).unwrap();
+        yuyv_to_rgb(&[y, u, y, v], Layout::new(2, 1, 4), &mut dst).unwrap();
         assert_eq!(dst[..3], expected, "Y={y} U={u} V={v}");
         assert_eq!(dst[3..], expected);
     }
@@ -623,7 +571,12 @@ mod tests {
             ([35, 212, 114], [0, 0, 191]),               // blue
         ] {
             let mut dst = [0u8; 6];
-            yuyv_to_rgb(&[yuv[0], yuv[1], yuv[0], yuv[2]], 2, 1, 4, &mut dst).unwrap();
+            yuyv_to_rgb(
+                &[yuv[0], yuv[1], yuv[0], yuv[2]],
+                Layout::new(2, 1, 4),
+                &mut dst,
+            )
+            .unwrap();
             for c in 0..3 {
                 assert!(
                     (dst[c] as i32 - rgb[c] as i32).abs() <= 2,
@@ -649,10 +602,10 @@ mod tests {
             }
         }
         let mut grey = vec![0u8; w * h];
-        yuyv_to_grey(&src, w, h, stride, &mut grey).unwrap();
+        yuyv_to_grey(&src, Layout::new(w, h, stride), &mut grey).unwrap();
         assert_eq!(grey, [20, 30, 40, 50, 60, 70, 80, 90]);
         let mut rgb = vec![0u8; w * h * 3];
-        yuyv_to_rgb(&src, w, h, stride, &mut rgb).unwrap();
+        yuyv_to_rgb(&src, Layout::new(w, h, stride), &mut rgb).unwrap();
         for (i, px) in rgb.chunks_exact(3).enumerate() {
             assert_eq!(px[0], px[1]);
             assert_eq!(px[1], px[2]);
@@ -660,21 +613,21 @@ mod tests {
         }
         // The last row may stop at its last pixel (no trailing padding needed).
         let cut = &src[..stride + w * 2];
-        yuyv_to_grey(cut, w, h, stride, &mut grey).unwrap();
+        yuyv_to_grey(cut, Layout::new(w, h, stride), &mut grey).unwrap();
     }
 
     #[test]
     fn grey_passthrough_drops_stride_padding() {
         let src = [1, 2, 3, 99, 4, 5, 6, 99];
         let mut dst = [0u8; 6];
-        grey_copy(&src, 3, 2, 4, &mut dst).unwrap();
+        grey_copy(&src, Layout::new(3, 2, 4), &mut dst).unwrap();
         assert_eq!(dst, [1, 2, 3, 4, 5, 6]);
     }
 
     #[test]
     fn short_frames_are_errors_naming_the_sizes() {
         let mut dst = vec![0u8; 8 * 8 * 3];
-        let err = yuyv_to_rgb(&[0; 127], 8, 8, 16, &mut dst).unwrap_err();
+        let err = yuyv_to_rgb(&[0; 127], Layout::new(8, 8, 16), &mut dst).unwrap_err();
         assert!(matches!(
             err,
             ConvertError::Short {
@@ -688,11 +641,11 @@ mod tests {
         assert!(err.to_string().contains("127 bytes"), "{err}");
         let mut grey = vec![0u8; 64];
         assert!(matches!(
-            grey_copy(&[0; 10], 8, 8, 8, &mut grey),
+            grey_copy(&[0; 10], Layout::new(8, 8, 8), &mut grey),
             Err(ConvertError::Short { expected: 64, .. })
         ));
         assert!(matches!(
-            yuyv_to_grey(&[], 8, 8, 16, &mut grey),
+            yuyv_to_grey(&[], Layout::new(8, 8, 16), &mut grey),
             Err(ConvertError::Short { got: 0, .. })
         ));
     }
@@ -701,17 +654,17 @@ mod tests {
     fn bad_geometry_is_an_error_not_a_panic() {
         let mut dst = vec![0u8; 3 * 2 * 3];
         assert!(matches!(
-            yuyv_to_rgb(&[0; 64], 3, 2, 6, &mut dst),
+            yuyv_to_rgb(&[0; 64], Layout::new(3, 2, 6), &mut dst),
             Err(ConvertError::Geometry { .. })
         ));
         let mut dst = vec![0u8; 4 * 2 * 3];
         assert!(matches!(
-            yuyv_to_rgb(&[0; 64], 4, 2, 4, &mut dst),
+            yuyv_to_rgb(&[0; 64], Layout::new(4, 2, 4), &mut dst),
             Err(ConvertError::Geometry { .. })
         ));
         // Output of the wrong size.
         assert!(matches!(
-            yuyv_to_rgb(&[0; 64], 4, 2, 8, &mut [0u8; 5]),
+            yuyv_to_rgb(&[0; 64], Layout::new(4, 2, 8), &mut [0u8; 5]),
             Err(ConvertError::Output {
                 expected: 24,
                 got: 5
@@ -802,21 +755,22 @@ mod tests {
 
     #[test]
     fn standard_tables_are_well_formed() {
-        for (bits, values) in [
-            (&STD_DC_LUMA_BITS, &STD_DC_VALUES[..]),
-            (&STD_DC_CHROMA_BITS, &STD_DC_VALUES[..]),
-            (&STD_AC_LUMA_BITS, &STD_AC_LUMA_VALUES[..]),
-            (&STD_AC_CHROMA_BITS, &STD_AC_CHROMA_VALUES[..]),
-        ] {
-            assert_eq!(
-                bits.iter().map(|&b| b as usize).sum::<usize>(),
-                values.len()
-            );
-        }
         assert_eq!(&STD_DHT_SEGMENT[..4], &[0xFF, 0xC4, 0x01, 0xA2]);
+        // Four tables, each class/id then 16 counts summing to its number of symbols.
+        let mut at = 4;
+        for (id, symbols) in [(0x00, 12), (0x10, 162), (0x01, 12), (0x11, 162)] {
+            assert_eq!(STD_DHT_SEGMENT[at], id);
+            let counts = &STD_DHT_SEGMENT[at + 1..at + 17];
+            assert_eq!(
+                counts.iter().map(|&c| usize::from(c)).sum::<usize>(),
+                symbols
+            );
+            at += 17 + symbols;
+        }
+        assert_eq!(at, STD_DHT_SEGMENT.len());
         // The segment is itself a valid DHT: a JPEG made of it and an SOS needs no insertion.
         let mut jpeg = vec![0xFF, 0xD8];
-        jpeg.extend_from_slice(&STD_DHT_SEGMENT);
+        jpeg.extend_from_slice(STD_DHT_SEGMENT);
         jpeg.extend_from_slice(&[0xFF, 0xDA]);
         assert!(matches!(dht_insertion_point(&jpeg), Ok(None)));
     }

@@ -769,35 +769,18 @@ mod tests {
 
     #[test]
     fn config_parses_and_rejects_unknown_keys() {
-        let c: V4l2Config = toml::from_str(
-            r#"device = "/dev/video0"
-               width = 640
-               height = 480
-               fps = 30
-               format = "MJPG""#,
-        )
-        .unwrap();
+        let parse = |rest: &str| {
+            let text =
+                format!("device = \"/dev/video0\"\nwidth = 640\nheight = 480\nfps = 30\n{rest}");
+            toml::from_str::<V4l2Config>(&text)
+        };
+        let c = parse("format = \"MJPG\"").unwrap();
         assert_eq!(c.format, CaptureFormat::Mjpg);
         assert_eq!(c.device, Path::new("/dev/video0"));
         c.validate().unwrap();
-        let err = toml::from_str::<V4l2Config>(
-            r#"device = "/dev/video0"
-               width = 640
-               height = 480
-               fps = 30
-               format = "YUYV"
-               colour = true"#,
-        )
-        .unwrap_err();
+        let err = parse("format = \"YUYV\"\ncolour = true").unwrap_err();
         assert!(err.to_string().contains("colour"), "{err}");
-        let err = toml::from_str::<V4l2Config>(
-            r#"device = "/dev/video0"
-               width = 640
-               height = 480
-               fps = 30
-               format = "H264""#,
-        )
-        .unwrap_err();
+        let err = parse("format = \"H264\"").unwrap_err();
         assert!(err.to_string().contains("H264"), "{err}");
     }
 

@@ -18,9 +18,8 @@ use flyd_core::decision::DecisionConfig;
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::engine::EngineParams;
 use flyd_core::frame::{PixelFormat, PreparedImage};
-use flyd_core::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
+use flyd_core::geometry::{Camera, Distortion, StereoRig};
 use flyd_core::status::State;
-use nalgebra::Point3;
 
 pub const W: u32 = 160;
 pub const H: u32 = 120;
@@ -28,26 +27,7 @@ pub const H: u32 = 120;
 pub const OBSTACLE_Z: f64 = 3.0;
 
 pub fn rig() -> StereoRig {
-    let cam = |x: f64| {
-        Camera::new(
-            W,
-            H,
-            Intrinsics {
-                fx: 130.0,
-                fy: 130.0,
-                cx: 79.5,
-                cy: 59.5,
-            },
-            Distortion::default(),
-            rotation_from_angles(0.0, 0.0, 0.0),
-            Point3::new(x, 1.0, 0.0),
-        )
-        .expect("camera")
-    };
-    StereoRig {
-        left: cam(-0.15),
-        right: cam(0.15),
-    }
+    flyd_core::test_support::small_rig(Distortion::default())
 }
 
 fn hash(ix: i64, iy: i64) -> f64 {
@@ -342,23 +322,25 @@ pub fn decode_all(frames: &[RecordedFrame]) -> Vec<Frame> {
 }
 
 pub fn commands(frames: &[Frame]) -> Vec<CommandMsg> {
-    frames
-        .iter()
-        .filter_map(|f| match f {
-            Frame::Command(m, _) => Some(*m),
-            _ => None,
-        })
-        .collect()
+    let command = |f: &Frame| {
+        if let Frame::Command(m, _) = f {
+            Some(*m)
+        } else {
+            None
+        }
+    };
+    frames.iter().filter_map(command).collect()
 }
 
 pub fn statuses(frames: &[Frame]) -> Vec<StatusMsg> {
-    frames
-        .iter()
-        .filter_map(|f| match f {
-            Frame::Status(m, _) => Some(*m),
-            _ => None,
-        })
-        .collect()
+    let status = |f: &Frame| {
+        if let Frame::Status(m, _) = f {
+            Some(*m)
+        } else {
+            None
+        }
+    };
+    frames.iter().filter_map(status).collect()
 }
 
 /// The alive counters of one message kind, in order.

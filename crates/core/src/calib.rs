@@ -32,9 +32,9 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Point3};
+use nalgebra::Point3;
 
-use crate::geometry::{Camera, CameraError, Distortion, Intrinsics, StereoRig};
+use crate::geometry::{Camera, CameraError, StereoRig};
 
 mod middlebury;
 mod opencv;
@@ -218,33 +218,15 @@ impl Part {
     }
 }
 
-/// Everything needed to build one camera, before validation.
-struct CameraSpec {
-    width: u32,
-    height: u32,
-    intrinsics: Intrinsics,
-    distortion: Distortion,
-    rotation: Matrix3<f64>,
-    centre: Point3<f64>,
-}
-
-/// Builds a camera through [`Camera::new`]'s validation, naming the file's field on failure.
-/// `field_of` maps the refused part to the field name as this format spells it.
+/// A camera [`Camera::new`] built (or refused), the refusal naming the file's field: `field_of`
+/// maps the refused part to the field name as this format spells it.
 fn build_camera(
     file: &Path,
     side: Side,
-    spec: CameraSpec,
+    camera: Result<Camera, CameraError>,
     field_of: impl Fn(Side, Part) -> String,
 ) -> Result<Camera, CalibError> {
-    Camera::new(
-        spec.width,
-        spec.height,
-        spec.intrinsics,
-        spec.distortion,
-        spec.rotation,
-        spec.centre,
-    )
-    .map_err(|error| CalibError::Camera {
+    camera.map_err(|error| CalibError::Camera {
         file: file.to_path_buf(),
         field: field_of(side, Part::of(&error)),
         error,

@@ -741,13 +741,7 @@ mod tests {
     fn invariants_hold_on_a_random_run() {
         let config = cfg();
         let mut decider = Decider::new(config).expect("valid");
-        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
-        let mut rnd = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut rnd = crate::test_support::xorshift64(0x9E37_79B9_7F4A_7C15);
         let mut history: Vec<(Duration, f64, bool)> = Vec::new();
         let mut t = Duration::ZERO;
         let mut previous = decider.command();
@@ -759,7 +753,11 @@ mod tests {
                 1..=2 => 0.2 + (r % 100) as f64 / 1000.0,
                 _ => (r % 140) as f64 / 1000.0,
             };
-            let faults = if rnd() % 50 == 0 { STALE } else { NONE };
+            let faults = if rnd().is_multiple_of(50) {
+                STALE
+            } else {
+                NONE
+            };
             let input = DecisionInput {
                 global_warning: w,
                 faults,

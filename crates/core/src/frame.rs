@@ -12,7 +12,7 @@
 //! Preparation never allocates once the image exists ([`PreparedImage::prepare_rgb`] refills in
 //! place); a frame of the wrong size is an error, not a panic.
 
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Isa, dispatch};
 
 /// Border, in pixels, around the image (>= the largest neighbourhood radius plus the kernel's
 /// over-read).
@@ -233,13 +233,13 @@ impl PreparedImage {
         /// [`Self::prepare`]'s work on a chosen instruction set (all give the same bytes):
         /// with AVX2 the compiler vectorises its loops 32 bytes wide and can shuffle the
         /// 3-byte pixels into the 4-byte layout.
-        fn prepare_on(&mut self: PreparedImage, format: PixelFormat, pixels: &[u8]);
-        isa = isa, up to Avx2 => PreparedImage::prepare_with
+        fn prepare_on(self: &mut PreparedImage, format: PixelFormat, pixels: &[u8]);
+        up to Avx2 => PreparedImage::prepare_with
     }
 
     /// Colour normalisation, luma, Sobel, border and block means. `pixels` has the right size.
     #[inline(always)]
-    fn prepare_with(&mut self, _: Level, format: PixelFormat, pixels: &[u8]) {
+    fn prepare_with(&mut self, _: Isa, format: PixelFormat, pixels: &[u8]) {
         let (w, h) = (self.width, self.height);
         let [n0, n1, n2] = self.normalisation(format, pixels);
         // Colour (normalised) and luma.

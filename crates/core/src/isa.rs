@@ -79,6 +79,16 @@ impl Isa {
         Self::available().iter().copied().find(|i| i.name() == name)
     }
 
+    /// The instruction set `level` without detection, for the per-level functions of
+    /// `dispatch!` (which run only at their level).
+    ///
+    /// # Safety
+    /// The CPU must have `level`'s features.
+    #[doc(hidden)]
+    pub(crate) const unsafe fn assumed(level: Level) -> Isa {
+        Isa(level)
+    }
+
     /// This instruction set, or `cap` if that is lower: for loops with no code above `cap`
     /// (a CPU that runs a level runs every level below it).
     #[inline(always)]
@@ -98,16 +108,15 @@ impl Isa {
 /// }
 /// impl Grid {
 ///     dispatch! {
-///         pub(crate) fn apply_on(&mut self: Grid, pop: &mut Population);
-///         isa = isa, up to Avx512 => Grid::apply
+///         pub(crate) fn apply_on(self: &mut Grid, pop: &mut Population);
+///         up to Avx512 => Grid::apply
 ///     }
 /// }
 /// ```
 ///
 /// The first defines `gather_flags(isa: Isa, flags, set)`, which calls
-/// `gather_flags_at(level, flags, set)`; the second a method `apply_on(&mut self, isa: Isa,
-/// pop)` (or, with `isa = self.isa`, one that takes the instruction set from `self`), which
-/// calls `Grid::apply(self, level, pop)`. The body runs inside a `#[target_feature]` function
+/// `gather_flags_at(isa, flags, set)`; the second a method `apply_on(&mut self, isa: Isa,
+/// pop)`, which calls `Grid::apply(self, level, pop)`. The body runs inside a `#[target_feature]` function
 /// of the instruction set's level (capped at the level after `up to`: `Avx2` for loops with
 /// no AVX-512 code), or directly on the baseline; the level it gets is a constant in each
 /// copy, so a `match` on it picks a level-specific kernel at compile time. Generic parameters
@@ -120,7 +129,22 @@ impl Isa {
 /// stays a function of its own even when dispatched from inside another one (the window pass,
 /// inlined into the whole evaluation, lost half its registers to the stack).
 macro_rules! dispatch {
-    // A free function.
+    // A method (`self: &Type` or `self: &mut Type` first), the instruction set its second
+    // parameter.
+    (
+        $(#[$meta:meta])*
+        $vis:vis fn $name:ident $([$($gen:tt)*])? (self: $this:ty $(, $arg:ident: $ty:ty)* $(,)?)
+            $(-> $ret:ty)?;
+        up to $cap:ident => $body:path
+    ) => {
+        $(#[$meta])*
+        $vis fn $name(self: $this, isa: $crate::isa::Isa $(, $arg: $ty)*) $(-> $ret)? {
+            $crate::isa::dispatch!(@levels isa, $cap, $body, [$($($gen)*)?],
+                [this: $this $(, $arg: $ty)*], [this], [$($arg),*], [self $(, $arg)*], [self],
+                [$($ret)?])
+        }
+    };
+    // A free function, the instruction set its first parameter.
     (
         $(#[$meta:meta])*
         $vis:vis fn $name:ident $([$($gen:tt)*])? ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;
@@ -130,47 +154,6 @@ macro_rules! dispatch {
         $vis fn $name $(<$($gen)*>)? (isa: $crate::isa::Isa, $($arg: $ty),*) $(-> $ret)? {
             $crate::isa::dispatch!(@levels isa, $cap, $body, [$($($gen)*)?],
                 [$($arg: $ty),*], [], [$($arg),*], [$($arg),*], [], [$($ret)?])
-        }
-    };
-    // A method on `&self` or `&mut self`, the instruction set an argument or an expression.
-    (
-        $(#[$meta:meta])*
-        $vis:vis fn $name:ident $([$($gen:tt)*])? (&$s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?)
-            $(-> $ret:ty)?;
-        isa = $isa:ident, up to $cap:ident => $body:path
-    ) => {
-        $(#[$meta])*
-        $vis fn $name(&$s, $isa: $crate::isa::Isa $(, $arg: $ty)*) $(-> $ret)? {
-            $crate::isa::dispatch!(@levels $isa, $cap, $body, [$($($gen)*)?],
-                [this: &$this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
-                [$($ret)?])
-        }
-    };
-    (
-        $(#[$meta:meta])*
-        $vis:vis fn $name:ident $([$($gen:tt)*])?
-            (&mut $s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?) $(-> $ret:ty)?;
-        isa = $isa:ident, up to $cap:ident => $body:path
-    ) => {
-        $(#[$meta])*
-        $vis fn $name(&mut $s, $isa: $crate::isa::Isa $(, $arg: $ty)*) $(-> $ret)? {
-            $crate::isa::dispatch!(@levels $isa, $cap, $body, [$($($gen)*)?],
-                [this: &mut $this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
-                [$($ret)?])
-        }
-    };
-    (
-        $(#[$meta:meta])*
-        $vis:vis fn $name:ident $([$($gen:tt)*])? (&$s:ident: $this:ty $(, $arg:ident: $ty:ty)* $(,)?)
-            $(-> $ret:ty)?;
-        isa = $isa:expr, up to $cap:ident => $body:path
-    ) => {
-        $(#[$meta])*
-        $vis fn $name(&$s $(, $arg: $ty)*) $(-> $ret)? {
-            let isa: $crate::isa::Isa = $isa;
-            $crate::isa::dispatch!(@levels isa, $cap, $body, [$($($gen)*)?],
-                [this: &$this $(, $arg: $ty)*], [this], [$($arg),*], [$s $(, $arg)*], [$s],
-                [$($ret)?])
         }
     };
     // The per-level functions and the match: `params` are the per-level functions' parameters,
@@ -188,7 +171,9 @@ macro_rules! dispatch {
         #[target_feature(enable = "avx2,bmi1,bmi2")]
         #[inline(never)]
         unsafe fn avx2<$($gen)*>($($p: $pt),*) $(-> $ret)? {
-            $body($($pre,)? $crate::isa::Level::Avx2 $(, $a)*)
+            // SAFETY: this function runs only at its level (its own contract).
+            let isa = unsafe { $crate::isa::Isa::assumed($crate::isa::Level::Avx2) };
+            $body($($pre,)? isa $(, $a)*)
         }
         $crate::isa::dispatch!(@if $cap {
             /// # Safety
@@ -197,7 +182,9 @@ macro_rules! dispatch {
             #[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
             #[inline(never)]
             unsafe fn avx512<$($gen)*>($($p: $pt),*) $(-> $ret)? {
-                $body($($pre,)? $crate::isa::Level::Avx512 $(, $a)*)
+                // SAFETY: this function runs only at its level (its own contract).
+                let isa = unsafe { $crate::isa::Isa::assumed($crate::isa::Level::Avx512) };
+                $body($($pre,)? isa $(, $a)*)
             }
         });
         match $isa.level() {
@@ -206,7 +193,7 @@ macro_rules! dispatch {
             // SAFETY: an `Isa` at AVX2 proves the CPU has AVX2, BMI1 and BMI2 (`isa.rs`).
             #[cfg(target_arch = "x86_64")]
             $crate::isa::Level::Avx2 => unsafe { avx2($($c),*) },
-            _ => $body($($outer,)? $crate::isa::Level::Baseline $(, $a)*),
+            _ => $body($($outer,)? $crate::isa::Isa::BASELINE $(, $a)*),
         }
     }};
     (@if Avx512 { $($t:tt)* }) => { $($t)* };

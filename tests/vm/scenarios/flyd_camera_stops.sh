@@ -5,11 +5,6 @@
 # for a non-CLEAR command is the fault.
 set -eu
 . "$(command -v flyd_common.sh)"
-flyd_config
-flyd_candump
-flyd_feeder empty-road --stop-camera left --at-frame 20 --resume-at 50
-flyd_start
-flyd_wait_running 90
-flyd_go
+flyd_launch empty-road --stop-camera left --at-frame 20 --resume-at 50
 flyd_wait_frame 90 90
 flyd_stop

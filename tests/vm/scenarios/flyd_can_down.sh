@@ -5,12 +5,7 @@
 # candump itself stops on a downed interface (ENETDOWN): it is restarted, appending.
 set -eu
 . "$(command -v flyd_common.sh)"
-flyd_config
-flyd_candump
-flyd_feeder empty-road
-flyd_start
-flyd_wait_running 90
-flyd_go
+flyd_launch empty-road
 flyd_wait_frame 20 60
 ip link set "$FLYD_CAN" down
 flyd_event_after can-down

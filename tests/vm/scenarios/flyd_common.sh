@@ -82,6 +82,17 @@ flyd_wait_running() {
     flyd_event flyd-running
 }
 
+# flyd_launch SCENARIO [FEEDER ARGS...]: the common start of a flyd scenario: the config,
+# candump, the feeder's lead-in, flyd started and RUNNING, then the scenario from frame 0.
+flyd_launch() {
+    flyd_config
+    flyd_candump
+    flyd_feeder "$@"
+    flyd_start
+    flyd_wait_running 90
+    flyd_go
+}
+
 # flyd_go: the feeder leaves its lead-in and plays the scenario from frame 0.
 flyd_go() {
     touch "$FLYD_GO"

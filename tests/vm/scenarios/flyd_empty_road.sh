@@ -3,11 +3,6 @@
 # RUNNING. flyd warms up on the first scene; 60 frames (6 s at 10 fps) of the scenario; SIGTERM.
 set -eu
 . "$(command -v flyd_common.sh)"
-flyd_config
-flyd_candump
-flyd_feeder empty-road
-flyd_start
-flyd_wait_running 90
-flyd_go
+flyd_launch empty-road
 flyd_wait_frame 60 60
 flyd_stop

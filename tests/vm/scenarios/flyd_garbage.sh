@@ -6,11 +6,6 @@
 # the only reason for a non-CLEAR command is the fault.
 set -eu
 . "$(command -v flyd_common.sh)"
-flyd_config
-flyd_candump
-flyd_feeder empty-road --garbage right --at-frame 20 --resume-at 50
-flyd_start
-flyd_wait_running 90
-flyd_go
+flyd_launch empty-road --garbage right --at-frame 20 --resume-at 50
 flyd_wait_frame 90 90
 flyd_stop

@@ -6,11 +6,6 @@
 # pedestrian appeared), SIGTERM.
 set -eu
 . "$(command -v flyd_common.sh)"
-flyd_config
-flyd_candump
-flyd_feeder pedestrian-steps-in
-flyd_start
-flyd_wait_running 90
-flyd_go
+flyd_launch pedestrian-steps-in
 flyd_wait_frame 90 60
 flyd_stop

@@ -20,10 +20,10 @@ use std::path::Path;
 use nalgebra::{Matrix3, Point3};
 
 use super::{
-    CalibError, Calibration, CameraSpec, Part, RigFields, Side, build_camera, check_depth_range,
-    check_rig, field_error,
+    CalibError, Calibration, Part, RigFields, Side, build_camera, check_depth_range, check_rig,
+    field_error,
 };
-use crate::geometry::{Distortion, Intrinsics, StereoRig};
+use crate::geometry::{Camera, Distortion, Intrinsics, StereoRig};
 
 /// Disparity margin (pixels) put around `[vmin, vmax]`: those bounds are the exact extremes of
 /// the ground truth, and flies at the extreme depths need a little room to converge.
@@ -182,15 +182,10 @@ pub fn parse_middlebury(text: &str, origin: &Path) -> Result<Calibration, CalibE
         },
     };
     let camera = |side, intrinsics, x| {
-        let spec = CameraSpec {
-            width,
-            height,
-            intrinsics,
-            distortion: Distortion::default(),
-            rotation: Matrix3::identity(),
-            centre: Point3::new(x, 0.0, 0.0),
-        };
-        build_camera(origin, side, spec, field_of)
+        let (distortion, rotation) = (Distortion::default(), Matrix3::identity());
+        let centre = Point3::new(x, 0.0, 0.0);
+        let camera = Camera::new(width, height, intrinsics, distortion, rotation, centre);
+        build_camera(origin, side, camera, field_of)
     };
     let baseline = baseline_mm / 1000.0;
     let rig = StereoRig {

@@ -30,10 +30,10 @@ use serde_json::Value;
 use serde_saphyr::options::NonFiniteFloatPolicy;
 
 use super::{
-    CalibError, Calibration, CameraSpec, MAX_BASELINE_M, Part, RigFields, Side, build_camera,
-    check_rig, field_error,
+    CalibError, Calibration, MAX_BASELINE_M, Part, RigFields, Side, build_camera, check_rig,
+    field_error,
 };
-use crate::geometry::{Distortion, Intrinsics, StereoRig, rotation_from_angles};
+use crate::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
 
 /// Unit of a length in a calibration file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
@@ -175,36 +175,14 @@ pub(super) fn build_rig(
         }
     };
     let left_rotation = rotation_from_angles(opts.pitch_deg, opts.yaw_deg, opts.roll_deg);
-    let left = build_camera(
-        origin,
-        Side::Left,
-        CameraSpec {
-            width,
-            height,
-            intrinsics: k1,
-            distortion: d1,
-            rotation: left_rotation,
-            centre: opts.left_position,
-        },
-        field_of,
-    )?;
+    let left = Camera::new(width, height, k1, d1, left_rotation, opts.left_position);
+    let left = build_camera(origin, Side::Left, left, field_of)?;
     // p_right = R p_left + T: the right optical centre (p_right = 0) is at -Rᵀ T in the left
     // camera frame. If R is not a rotation, Rᵀ is not its inverse and this centre is wrong, but
     // Camera::new then refuses R * left_rotation and the error blames R.
     let right_centre = left.vehicle_from_camera(&Point3::from(-(r.transpose() * t)));
-    let right = build_camera(
-        origin,
-        Side::Right,
-        CameraSpec {
-            width,
-            height,
-            intrinsics: k2,
-            distortion: d2,
-            rotation: r * left_rotation,
-            centre: right_centre,
-        },
-        field_of,
-    )?;
+    let right = Camera::new(width, height, k2, d2, r * left_rotation, right_centre);
+    let right = build_camera(origin, Side::Right, right, field_of)?;
     let rig = StereoRig { left, right };
     check_rig(
         origin,

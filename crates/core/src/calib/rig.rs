@@ -47,7 +47,7 @@ use nalgebra::{Matrix3, Point3};
 use serde::Deserialize;
 
 use super::{
-    CalibError, Calibration, CameraSpec, OpenCvImport, Part, RigFields, Side, Unit, build_camera,
+    CalibError, Calibration, OpenCvImport, Part, RigFields, Side, Unit, build_camera,
     check_depth_range, check_rig, field_error, opencv,
 };
 use crate::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
@@ -107,30 +107,36 @@ struct SearchToml {
 
 /// Parses a flyd rig TOML. `origin` names the file in errors and is where an `[opencv]` file is
 /// looked up relative to.
+/// Two keys that go together, `(value, key)` each: both values, or neither.
+fn paired<T>(
+    file: &Path,
+    (a, a_key): (Option<T>, &str),
+    (b, b_key): (Option<T>, &str),
+) -> Result<Option<(T, T)>, CalibError> {
+    match (a, b) {
+        (Some(a), Some(b)) => Ok(Some((a, b))),
+        (None, None) => Ok(None),
+        (Some(_), None) => Err(field_error(
+            file,
+            b_key,
+            format!("missing ({a_key} is given)"),
+        )),
+        (None, Some(_)) => Err(field_error(
+            file,
+            a_key,
+            format!("missing ({b_key} is given)"),
+        )),
+    }
+}
+
 pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibError> {
     let file: RigFile = toml::from_str(text).map_err(|e| toml_error(origin, text, &e))?;
     let search = file.search.unwrap_or_default();
-    let depth_range = match (search.min_depth, search.max_depth) {
-        (Some(min), Some(max)) => {
-            check_depth_range(origin, (min, max), "search.min_depth", "search.max_depth")?;
-            Some((min, max))
-        }
-        (None, None) => None,
-        (Some(_), None) => {
-            return Err(field_error(
-                origin,
-                "search.max_depth",
-                "missing (search.min_depth is given)",
-            ));
-        }
-        (None, Some(_)) => {
-            return Err(field_error(
-                origin,
-                "search.min_depth",
-                "missing (search.max_depth is given)",
-            ));
-        }
-    };
+    let (min, max) = ("search.min_depth", "search.max_depth");
+    let depth_range = paired(origin, (search.min_depth, min), (search.max_depth, max))?;
+    if let Some(range) = depth_range {
+        check_depth_range(origin, range, min, max)?;
+    }
     let rig = match (file.left, file.right, file.opencv) {
         (Some(_), _, Some(_)) | (_, Some(_), Some(_)) => {
             return Err(field_error(
@@ -253,20 +259,15 @@ fn camera(
             rotation_from_angles(pitch, yaw, roll)
         }
     };
-    let camera_spec = CameraSpec {
-        width,
-        height,
-        intrinsics: Intrinsics {
-            fx: spec.fx,
-            fy: spec.fy,
-            cx: spec.cx,
-            cy: spec.cy,
-        },
-        distortion,
-        rotation,
-        centre: Point3::from(spec.position),
+    let intrinsics = Intrinsics {
+        fx: spec.fx,
+        fy: spec.fy,
+        cx: spec.cx,
+        cy: spec.cy,
     };
-    build_camera(file, side, camera_spec, |side, part| {
+    let centre = Point3::from(spec.position);
+    let camera = Camera::new(width, height, intrinsics, distortion, rotation, centre);
+    build_camera(file, side, camera, |side, part| {
         let name = match part {
             Part::Width => "width",
             Part::Height => "height",
@@ -328,24 +329,11 @@ fn imported_rig(
             ("roll_deg", mount.roll_deg),
         ],
     )?;
-    let image_size = match (import.width, import.height) {
-        (Some(w), Some(h)) => Some((w, h)),
-        (None, None) => None,
-        (Some(_), None) => {
-            return Err(field_error(
-                file,
-                "opencv.height",
-                "missing (opencv.width is given)",
-            ));
-        }
-        (None, Some(_)) => {
-            return Err(field_error(
-                file,
-                "opencv.width",
-                "missing (opencv.height is given)",
-            ));
-        }
-    };
+    let image_size = paired(
+        file,
+        (import.width, "opencv.width"),
+        (import.height, "opencv.height"),
+    )?;
     let opts = OpenCvImport {
         translation_unit: import.translation_unit.unwrap_or_default(),
         image_size,

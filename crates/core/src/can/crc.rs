@@ -145,16 +145,9 @@ mod tests {
         for b in 0..=255u8 {
             assert_eq!(crc8_j1850(&[b]), crc8_bitwise(&[b]), "byte {b:#04x}");
         }
-        let mut x: u32 = 0x1234_5678;
+        let mut next = crate::test_support::xorshift32(0x1234_5678);
         for len in 0..64 {
-            let data: Vec<u8> = (0..len)
-                .map(|_| {
-                    x ^= x << 13;
-                    x ^= x >> 17;
-                    x ^= x << 5;
-                    x as u8
-                })
-                .collect();
+            let data: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             assert_eq!(crc8_j1850(&data), crc8_bitwise(&data), "len {len}");
         }
     }

@@ -642,12 +642,12 @@ mod tests {
         assert_eq!(back, cmd);
 
         let status = StatusMsg {
-            state: State::Degraded,
-            faults: FaultBits::LEFT_CAMERA_STALE | FaultBits::CAN_TX_ERROR,
-            perception_age: Duration::from_millis(1234),
-            generations_per_sec: 118.0,
-            cam_fps_left: 29.5,
-            cam_fps_right: 30.0,
+            state: State::Fault,
+            faults: FaultBits::STEREO_SKEW | FaultBits::INTERNAL,
+            perception_age: Duration::from_millis(987),
+            generations_per_sec: 64.0,
+            cam_fps_left: 14.5,
+            cam_fps_right: 15.0,
         };
         assert_eq!(StatusMsg::decode(&status.encode(c(14))), Ok(status));
 

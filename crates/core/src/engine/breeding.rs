@@ -12,7 +12,7 @@ use super::lists::gather;
 use super::params::EngineParams;
 use super::sampler::unit_f32;
 use super::sharing;
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Isa, dispatch};
 use rand::Rng;
 use rand::rngs::Xoshiro256PlusPlus;
 use std::ops::Range;
@@ -128,7 +128,7 @@ dispatch! {
 /// are read and written through one slice a coordinate, which keeps three pointers fewer.
 #[inline(always)]
 fn breed_with(
-    _: Level,
+    _: Isa,
     b: &Breeding,
     coords: [&mut [f32]; 3],
     children: Range<usize>,

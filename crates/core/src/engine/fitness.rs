@@ -31,7 +31,7 @@ use super::projector::Projector;
 use super::sharing::Grid;
 use super::windows::{Windows, mask, mask_bits, mask16};
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Isa, dispatch};
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
@@ -63,13 +63,11 @@ pub(crate) struct Kernel<'a> {
     channels: usize,
     /// SSD (summed over the compared samples) under which a fly's windows match.
     match_ssd: f32,
-    /// Instruction set of the evaluation, detected at run time.
-    isa: Isa,
 }
 
 impl<'a> Kernel<'a> {
-    /// The kernel for `frame` on instruction set `isa` (the engine's, detected once).
-    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams, isa: Isa) -> Self {
+    /// The kernel for `frame`.
+    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams) -> Self {
         let radius = params.neighbourhood_radius as usize;
         // Channels present in *both* images (a grey camera paired with a colour one compares grey).
         let channels = frame.left.channels().min(frame.right.channels()) as usize;
@@ -85,7 +83,6 @@ impl<'a> Kernel<'a> {
             roi: params.roi,
             channels,
             match_ssd: (MATCH_SSD_PER_SAMPLE * samples as f64) as f32,
-            isa,
         }
     }
 
@@ -101,11 +98,12 @@ impl<'a> Kernel<'a> {
     }
 
     dispatch! {
+        #[allow(clippy::too_many_arguments)]
         /// Evaluates flies `range` of `pop`: projections, sharing cells (of `grid`) and
         /// `raw_fitness`. Returns how many of them both cameras see, and how many of those
         /// match (see [`Matches`]).
-        pub(crate) fn evaluate(
-            &self: Kernel<'_>,
+        pub(crate) fn evaluate['a](
+            self: &Kernel<'a>,
             left: &Projector,
             right: &Projector,
             pop: &mut Population,
@@ -113,14 +111,14 @@ impl<'a> Kernel<'a> {
             grid: &Grid,
             scratch: &mut Scratch,
         ) -> Matches;
-        isa = self.isa, up to Avx512 => Kernel::evaluate_at
+        up to Avx512 => Kernel::evaluate_at
     }
 
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn evaluate_at(
         &self,
-        level: Level,
+        isa: Isa,
         left: &Projector,
         right: &Projector,
         pop: &mut Population,
@@ -131,19 +129,19 @@ impl<'a> Kernel<'a> {
         let args = (left, right, pop, range, grid, scratch);
         // One instantiation per (radius, channels): the row width and mask become constants.
         match (self.radius, self.channels) {
-            (1, 1) => self.evaluate_with::<16, 1, 1>(level, args),
-            (1, _) => self.evaluate_with::<16, 1, 3>(level, args),
-            (2, 1) => self.evaluate_with::<32, 2, 1>(level, args),
-            (2, _) => self.evaluate_with::<32, 2, 3>(level, args),
-            (_, 1) => self.evaluate_with::<32, 3, 1>(level, args),
-            (_, _) => self.evaluate_with::<32, 3, 3>(level, args),
+            (1, 1) => self.evaluate_with::<16, 1, 1>(isa, args),
+            (1, _) => self.evaluate_with::<16, 1, 3>(isa, args),
+            (2, 1) => self.evaluate_with::<32, 2, 1>(isa, args),
+            (2, _) => self.evaluate_with::<32, 2, 3>(isa, args),
+            (_, 1) => self.evaluate_with::<32, 3, 1>(isa, args),
+            (_, _) => self.evaluate_with::<32, 3, 3>(isa, args),
         }
     }
 
     #[inline(always)]
     fn evaluate_with<const W: usize, const R: usize, const C: usize>(
         &self,
-        level: Level,
+        isa: Isa,
         (left, right, pop, range, grid, scratch): Args<'_>,
     ) -> Matches {
         let mask = &const { mask::<W>(R, C) };
@@ -153,7 +151,7 @@ impl<'a> Kernel<'a> {
         let (ls, rs) = (self.left.stride(), self.right.stride());
         let rows = 2 * R + 1;
         let row_step = self.row_step;
-        pop.project(level, left, right, range.clone());
+        pop.project(isa, left, right, range.clone());
         let roi = self.roi.map(|roi| {
             (
                 roi.min_height as f32,
@@ -217,7 +215,7 @@ impl<'a> Kernel<'a> {
             mask16,
             mask_bits,
         };
-        windows.compare(self.isa, lo, ro, ts, grads, ssds);
+        windows.compare(isa, lo, ro, ts, grads, ssds);
 
         // 3. Fitness, region of interest and match counts: straight-line again.
         let mut m = Matches::default();

@@ -148,6 +148,7 @@ impl Immigration {
         if probing > 0 {
             self.probed = probing * k;
             ctx.kernel.evaluate(
+                ctx.isa,
                 ctx.left,
                 ctx.right,
                 &mut self.probe,
@@ -186,6 +187,7 @@ impl Immigration {
                 }
                 self.probed += probing * REFINE_PROBES;
                 ctx.kernel.evaluate(
+                    ctx.isa,
                     ctx.left,
                     ctx.right,
                     &mut self.probe,

@@ -6,7 +6,7 @@
 //! left-pack permutation table (AVX2 has no compress instruction); with AVX-512, 16 at a time
 //! with a compress and one masked store.
 
-use crate::isa::{Level, dispatch};
+use crate::isa::{Isa, Level, dispatch};
 
 /// Writes `base + j` for every j whose flag is set to the front of `out` and returns how many
 /// (at most `out.len()`). Without branches: every index is written and the cursor advances on a
@@ -31,8 +31,8 @@ dispatch! {
 }
 
 #[inline(always)]
-fn gather_flags_at(level: Level, flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
-    match level {
+fn gather_flags_at(isa: Isa, flags: &[bool], set: bool, base: usize, out: &mut [u32]) -> usize {
+    match isa.level() {
         // SAFETY: the level is AVX-512 only in `gather_flags`'s AVX-512 function.
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 => unsafe { gather_flags_avx512(flags, set, base, out) },

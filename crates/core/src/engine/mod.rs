@@ -69,7 +69,7 @@ pub use population::Population;
 
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Isa, dispatch};
 use breeding::Breeder;
 use change::ChangeMap;
 use fitness::{Kernel, Scratch};
@@ -284,7 +284,7 @@ impl Engine {
             // Before reproduction, so this generation's immigrants already go where it changed.
             self.change.update(frame.left.block_means());
         }
-        let kernel = Kernel::new(frame, &self.setup.params, self.isa);
+        let kernel = Kernel::new(frame, &self.setup.params);
         self.immigration.probed = 0;
         if self.frame_id.is_some() {
             if new_frame {
@@ -305,6 +305,7 @@ impl Engine {
         let n = self.pop.len();
         let t = phase::start(Phase::Evaluate);
         let matches = kernel.evaluate(
+            self.isa,
             &self.setup.left,
             &self.setup.right,
             &mut self.pop,
@@ -424,7 +425,7 @@ dispatch! {
 /// The warnings step: the warning of every fly of `p`; returns (mean warning, danger, mean
 /// fitness, visible flies).
 #[inline(always)]
-fn warnings(_: Level, p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize) {
+fn warnings(_: Isa, p: &mut Population, min_x: f32, min_z: f32) -> (f64, f64, f64, usize) {
     // The fly's own evidence (after the region of interest, before sharing): sharing is a
     // device of selection, and must not make an obstacle look less dangerous because many
     // flies found it.

@@ -73,7 +73,7 @@ dispatch! {
 /// coordinate by coordinate. Flies beyond `masks` or a third of `hits` are left as they are.
 #[inline(always)]
 pub(super) fn mutate_at(
-    level: Level,
+    isa: Isa,
     coords: [&mut [f32]; 3],
     masks: &[u64],
     hits: &mut [u32],
@@ -81,7 +81,7 @@ pub(super) fn mutate_at(
     threshold: u32,
     sigma: f32,
 ) {
-    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| match level {
+    let lists = |m: &[u64], t: u64, l: [&mut [u32]; 3]| match isa.level() {
         // SAFETY: the level is AVX-512 only in `mutate_on`'s AVX-512 function.
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 => unsafe { coin_lists_avx512(m, t, l) },
@@ -164,6 +164,12 @@ pub(super) fn coin_lists(
     [cx, cy, cz]
 }
 
+/// How many coins of `masks` the three `lists` have room for (one entry a coin at most).
+#[inline(always)]
+fn room(masks: &[u64], lists: &[&mut [u32]; 3]) -> usize {
+    lists.iter().fold(masks.len(), |n, l| n.min(l.len()))
+}
+
 /// [`coin_lists`] from 0 with AVX-512: 16 coins at a time, compared in 64-bit lanes, their
 /// indices compressed into each list with one masked store (a branch-free scalar pass cost
 /// ~3 us a generation).
@@ -178,11 +184,7 @@ pub(super) unsafe fn coin_lists_avx512(
     lists: [&mut [u32]; 3],
 ) -> [usize; 3] {
     use std::arch::x86_64::*;
-    let n = masks
-        .len()
-        .min(lists[0].len())
-        .min(lists[1].len())
-        .min(lists[2].len());
+    let n = room(masks, &lists);
     let full = n / 16 * 16;
     let mut counts = [0usize; 3];
     // SAFETY: the loads read 16 u64 at `j < full <= masks.len() - 16`; list k's store writes
@@ -222,11 +224,7 @@ pub(super) unsafe fn coin_lists_avx512(
 #[target_feature(enable = "avx2,bmi1,bmi2")]
 pub(super) unsafe fn coin_lists_avx2(masks: &[u64], t: u64, lists: [&mut [u32]; 3]) -> [usize; 3] {
     use std::arch::x86_64::*;
-    let n = masks
-        .len()
-        .min(lists[0].len())
-        .min(lists[1].len())
-        .min(lists[2].len());
+    let n = room(masks, &lists);
     let full = n / 8 * 8;
     let mut counts = [0usize; 3];
     // SAFETY: the loads read 8 u64 at `j < full <= masks.len() - 8`; list k's store writes 8
@@ -274,7 +272,7 @@ mod tests {
         let masks: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
         let mut hits = vec![0; 3 * n];
         mutate_at(
-            Level::Baseline,
+            Isa::BASELINE,
             [&mut x, &mut y, &mut z],
             &masks,
             &mut hits,
@@ -303,7 +301,7 @@ mod tests {
         assert!((sigma - 0.1).abs() < 0.005, "sigma {sigma} for 0.02 * 5 m");
         let (mut x, mut y, mut z) = (vec![1.0; 4], vec![2.0; 4], vec![3.0; 4]);
         mutate_at(
-            Level::Baseline,
+            Isa::BASELINE,
             [&mut x, &mut y, &mut z],
             &masks[..4],
             &mut hits,

@@ -1,7 +1,7 @@
 //! The flies, structure-of-arrays: each hot loop streams over one or two fields.
 
 use super::projector::Projector;
-use crate::isa::{Level, dispatch};
+use crate::isa::{Isa, dispatch};
 use std::ops::Range;
 
 /// The flies, structure-of-arrays: the hot loops stream over one field at a time.
@@ -68,13 +68,7 @@ impl Population {
     /// Projects flies `r` into both images (NaN where a fly is outside one). Inlined, so the
     /// AVX2 evaluation compiles it 8 flies wide.
     #[inline(always)]
-    pub(super) fn project(
-        &mut self,
-        _: Level,
-        left: &Projector,
-        right: &Projector,
-        r: Range<usize>,
-    ) {
+    pub(super) fn project(&mut self, _: Isa, left: &Projector, right: &Projector, r: Range<usize>) {
         let (x, y, z) = (&self.x[r.clone()], &self.y[r.clone()], &self.z[r.clone()]);
         left.project_batch(
             x,
@@ -90,12 +84,12 @@ impl Population {
         /// [`Population::project`] on instruction set `isa` (the same bits on each; AVX2
         /// projects 8 flies at a time instead of 4).
         pub(super) fn project_on(
-            &mut self: Population,
+            self: &mut Population,
             left: &Projector,
             right: &Projector,
             r: Range<usize>,
         );
-        isa = isa, up to Avx2 => Population::project
+        up to Avx2 => Population::project
     }
 
     /// Indices of the `k` fittest flies, best first (for display and evaluation; allocates).

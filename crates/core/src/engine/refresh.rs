@@ -50,6 +50,7 @@ impl Refresh {
             self.batch.z[k] = pop.z[i];
         }
         ctx.kernel.evaluate(
+            ctx.isa,
             ctx.left,
             ctx.right,
             &mut self.batch,

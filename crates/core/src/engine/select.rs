@@ -9,7 +9,7 @@
 
 use super::Population;
 use super::lists::gather_flags;
-use crate::isa::{Isa, Level, dispatch};
+use crate::isa::{Isa, dispatch};
 
 /// Bins of the radix pass: the top 15 bits below the sign (exponent and 7 mantissa bits, so a
 /// bin spans under 1 % of fitness). The finer the bins, the fewer flies share the boundary bin,
@@ -89,13 +89,13 @@ impl Selector {
 
     dispatch! {
         /// [`Selector::select`] compiled for instruction set `isa` (the same flies on each).
-        pub(crate) fn select_on(&mut self: Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);
-        isa = isa, up to Avx512 => Selector::select
+        pub(crate) fn select_on(self: &mut Selector, fitness: &[f32], keep: usize, chosen: &mut [bool]);
+        up to Avx512 => Selector::select
     }
 
     /// Sets `chosen[i]` for exactly `keep` flies: the fittest, ties to the lower index.
     #[inline(always)]
-    pub(crate) fn select(&mut self, _: Level, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
+    pub(crate) fn select(&mut self, _: Isa, fitness: &[f32], keep: usize, chosen: &mut [bool]) {
         let n = fitness.len().min(chosen.len()).min(self.keys.len());
         let keep = keep.min(n);
         let keys = &mut self.keys[..n];
@@ -217,7 +217,7 @@ mod tests {
                 .collect();
             for keep in [0, 1, 13, 40, 64] {
                 let mut chosen = vec![false; 64];
-                s.select(Level::Baseline, &fitness, keep, &mut chosen);
+                s.select(Isa::BASELINE, &fitness, keep, &mut chosen);
                 assert_eq!(
                     chosen,
                     reference(&fitness, keep),
@@ -237,12 +237,10 @@ mod tests {
         check(&[7.0; 10], 10);
         // Values sharing a radix bin (same exponent, close mantissas).
         check(&[1.0, 1.0001, 1.0002, 1.00005, 0.999, 1.0003], 3);
-        let mut x = 0x1234_5678u32;
+        let mut next = crate::test_support::xorshift32(0x1234_5678);
         let many: Vec<f32> = (0..5000)
             .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 17;
-                x ^= x << 5;
+                let x = next();
                 if x.is_multiple_of(7) {
                     0.0
                 } else {

@@ -16,7 +16,7 @@
 
 use super::Population;
 use super::fitness::trunc;
-use crate::isa::{Level, dispatch};
+use crate::isa::{Isa, Level, dispatch};
 
 #[derive(Debug, Clone)]
 pub(crate) struct Grid {
@@ -61,14 +61,14 @@ impl Grid {
 
     dispatch! {
         /// [`Grid::apply`] compiled for instruction set `isa` (the same fitness on each).
-        pub(crate) fn apply_on(&mut self: Grid, pop: &mut Population);
-        isa = isa, up to Avx512 => Grid::apply
+        pub(crate) fn apply_on(self: &mut Grid, pop: &mut Population);
+        up to Avx512 => Grid::apply
     }
 
     /// Sets `fitness` from `raw_fitness` and the cells the evaluation assigned (`u32::MAX` for a
     /// fly outside an image: fitness 0).
     #[inline(always)]
-    pub(crate) fn apply(&mut self, _: Level, pop: &mut Population) {
+    pub(crate) fn apply(&mut self, _: Isa, pop: &mut Population) {
         self.counts.fill(0);
         for &cell in &pop.cell {
             if let Some(c) = self.counts.get_mut(cell as usize) {
@@ -111,14 +111,14 @@ impl Mates {
     dispatch! {
         /// [`Mates::index`] compiled for instruction set `isa` (the same groups on each; with
         /// AVX-512, the prefix sum 16 cells a vector).
-        pub(crate) fn index_on(&mut self: Mates, cells: &[u32]);
-        isa = isa, up to Avx512 => Mates::index
+        pub(crate) fn index_on(self: &mut Mates, cells: &[u32]);
+        up to Avx512 => Mates::index
     }
 
     /// Groups flies `0..cells.len()` by their cell (`u32::MAX`: no cell, left out).
     #[inline(always)]
-    pub(crate) fn index(&mut self, level: Level, cells: &[u32]) {
-        match level {
+    pub(crate) fn index(&mut self, isa: Isa, cells: &[u32]) {
+        match isa.level() {
             // SAFETY: the level is AVX-512 only in `index_on`'s AVX-512 function.
             #[cfg(target_arch = "x86_64")]
             Level::Avx512 => self.index_with(cells, |v| unsafe { prefix_sum_avx512(v) }),
@@ -263,16 +263,9 @@ mod tests {
 
     #[test]
     fn prefix_sums_are_the_same_on_every_instruction_set() {
-        let mut x = 0x0bad_f00du32;
+        let mut next = crate::test_support::xorshift32(0x0bad_f00d);
         for n in [0, 1, 15, 16, 17, 31, 32, 33, 8562] {
-            let v: Vec<u32> = (0..n)
-                .map(|_| {
-                    x ^= x << 13;
-                    x ^= x >> 17;
-                    x ^= x << 5;
-                    x % 5
-                })
-                .collect();
+            let v: Vec<u32> = (0..n).map(|_| next() % 5).collect();
             let mut want = v.clone();
             let mut end = 0;
             for w in &mut want {
@@ -312,7 +305,7 @@ mod tests {
                 g.cell(p.u_left[i], p.v_left[i])
             };
         }
-        g.apply(Level::Baseline, p);
+        g.apply(Isa::BASELINE, p);
     }
 
     #[test]
@@ -348,7 +341,7 @@ mod tests {
     #[test]
     fn mates_come_from_the_same_cell() {
         let mut m = Mates::new(32, 16, 8, 6); // 4 x 2 cells
-        m.index(Level::Baseline, &[5, 0, 5, u32::MAX, 7, 5]);
+        m.index(Isa::BASELINE, &[5, 0, 5, u32::MAX, 7, 5]);
         let pick = |cell, k: u32| m.pick(cell, k.wrapping_mul(0x4000_0000));
         let in5: std::collections::BTreeSet<usize> = (0..4).filter_map(|k| pick(5, k)).collect();
         assert_eq!(in5, [0, 2, 5].into_iter().collect());

@@ -4,7 +4,7 @@ use super::immigration::{REFINE_PROBES, REFINE_STAGES, first_fittest};
 use super::sampler::lerp;
 use super::*;
 use crate::frame::{PixelFormat, PreparedImage};
-use crate::geometry::{Camera, Distortion, Intrinsics, rotation_from_angles};
+use crate::geometry::{Camera, Distortion};
 use nalgebra::Point3;
 use rand::Rng;
 
@@ -16,30 +16,11 @@ fn warnings(e: &mut Engine) -> (f64, f64, f64, usize) {
 }
 
 fn rig() -> StereoRig {
-    let cam = |x: f64| {
-        Camera::new(
-            160,
-            120,
-            Intrinsics {
-                fx: 130.0,
-                fy: 130.0,
-                cx: 79.5,
-                cy: 59.5,
-            },
-            Distortion {
-                k1: -0.05,
-                k2: 0.01,
-                ..Distortion::default()
-            },
-            rotation_from_angles(0.0, 0.0, 0.0),
-            Point3::new(x, 1.0, 0.0),
-        )
-        .expect("camera")
-    };
-    StereoRig {
-        left: cam(-0.15),
-        right: cam(0.15),
-    }
+    crate::test_support::small_rig(Distortion {
+        k1: -0.05,
+        k2: 0.01,
+        ..Distortion::default()
+    })
 }
 
 fn hash(ix: i64, iy: i64, seed: u64) -> f64 {
@@ -204,10 +185,11 @@ fn new_frame_reevaluates_every_fly() {
     assert!(s.new_frame);
     assert_eq!(s.evaluated, 500, "new frame: survivors re-evaluated too");
     // The stored fitness is the one a fresh engine computes on frame b for the same flies.
-    let kernel = Kernel::new(&b, e.params(), e.isa);
+    let kernel = Kernel::new(&b, e.params());
     let mut fresh = e.population().clone();
     let n = fresh.len();
     kernel.evaluate(
+        e.isa,
         &e.setup.left,
         &e.setup.right,
         &mut fresh,
@@ -392,13 +374,13 @@ fn batched_redraw_draws_what_one_by_one_sampling_would() {
         }
         let n = e.pop.len();
         e.pop
-            .project(Level::Baseline, &e.setup.left, &e.setup.right, 0..n);
+            .project(Isa::BASELINE, &e.setup.left, &e.setup.right, 0..n);
         e
     };
     let from = 40;
     let (mut batched, mut reference) = (engine(), engine());
     let frame = wall_frame(&rig(), 4.0, 1, 1);
-    let kernel = Kernel::new(&frame, &batched.setup.params, batched.isa);
+    let kernel = Kernel::new(&frame, &batched.setup.params);
     let ctx = Context::of(
         &batched.setup,
         &batched.change,
@@ -623,7 +605,7 @@ fn probed_immigrants_reach_the_fitness_peak_of_their_ray() {
     let k = e.setup.params.immigrant_probes as usize;
     let probing = e.immigration.probed / (k + REFINE_STAGES * REFINE_PROBES);
     assert!(probing > 100, "{probing} immigrants probed");
-    let kernel = Kernel::new(&b, &e.setup.params, e.isa);
+    let kernel = Kernel::new(&b, &e.setup.params);
     let steps = 2000;
     let mut dense = Population::with_len(steps);
     let mut scratch = fitness::Scratch::new(steps);
@@ -636,6 +618,7 @@ fn probed_immigrants_reach_the_fitness_peak_of_their_ray() {
             (dense.x[s], dense.y[s], dense.z[s]) = (q[0], q[1], q[2]);
         }
         kernel.evaluate(
+            e.isa,
             &e.setup.left,
             &e.setup.right,
             &mut dense,
@@ -719,14 +702,9 @@ fn flies_stop_matching_when_a_camera_delivers_noise() {
     for _ in 0..40 {
         converged = e.step(&wall).expect("step");
     }
-    let mut x = 99u64;
+    let mut next = crate::test_support::xorshift64(99);
     let noise: Vec<u8> = (0..rig.right.width() * rig.right.height() * 3)
-        .map(|_| {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x as u8
-        })
+        .map(|_| next() as u8)
         .collect();
     let (w, h) = (rig.right.width(), rig.right.height());
     let garbage = StereoFrame::new(
@@ -794,9 +772,10 @@ fn every_instruction_set_gives_the_same_fitness() {
     }
     let eval = |isa| {
         let mut pop = e.pop.clone();
-        let kernel = Kernel::new(&frame, &e.setup.params, isa);
+        let kernel = Kernel::new(&frame, &e.setup.params);
         let n = pop.len();
         let m = kernel.evaluate(
+            isa,
             &e.setup.left,
             &e.setup.right,
             &mut pop,

@@ -11,7 +11,7 @@
 //! and trust their caller's single bounds check a window.
 
 use crate::frame::BPP;
-use crate::isa::{Level, dispatch};
+use crate::isa::{Isa, Level, dispatch};
 
 /// Byte mask of one neighbourhood row loaded as `W` bytes: the window's colour channels.
 /// A compile-time constant in the kernel, so masking costs one vector AND.
@@ -67,19 +67,19 @@ pub(super) struct Windows<'a, const W: usize> {
     pub(super) mask_bits: u64,
 }
 
-impl<const W: usize> Windows<'_, W> {
+impl<'a, const W: usize> Windows<'a, W> {
     dispatch! {
         /// [`Windows::run`] on instruction set `isa`, in a function of its own: inlined into
         /// the whole evaluation, its loop lost half its registers to the stack.
-        pub(super) fn compare[const W: usize](
-            &self: Windows<'_, W>,
+        pub(super) fn compare['a, const W: usize](
+            self: &Windows<'a, W>,
             lo: &[u32],
             ro: &[u32],
             ts: &[u16],
             grads: &mut [i32],
             ssds: &mut [i32],
         );
-        isa = isa, up to Avx512 => Windows::unrolled
+        up to Avx512 => Windows::unrolled
     }
 
     /// The default neighbourhood's three compared rows get an instantiation of their own
@@ -87,7 +87,7 @@ impl<const W: usize> Windows<'_, W> {
     #[inline(always)]
     fn unrolled(
         &self,
-        level: Level,
+        isa: Isa,
         lo: &[u32],
         ro: &[u32],
         ts: &[u16],
@@ -95,8 +95,8 @@ impl<const W: usize> Windows<'_, W> {
         ssds: &mut [i32],
     ) {
         match self.n_rows {
-            3 => Windows { n_rows: 3, ..*self }.run(level, lo, ro, ts, grads, ssds),
-            _ => self.run(level, lo, ro, ts, grads, ssds),
+            3 => Windows { n_rows: 3, ..*self }.run(isa, lo, ro, ts, grads, ssds),
+            _ => self.run(isa, lo, ro, ts, grads, ssds),
         }
     }
 
@@ -106,7 +106,7 @@ impl<const W: usize> Windows<'_, W> {
     #[inline(always)]
     fn run(
         &self,
-        level: Level,
+        isa: Isa,
         lo: &[u32],
         ro: &[u32],
         ts: &[u16],
@@ -153,35 +153,20 @@ impl<const W: usize> Windows<'_, W> {
             } else {
                 (r, ts[i])
             };
-            let ssd = match level {
+            // SAFETY: l <= lmax < ld.len() and rw <= r + BPP <= rmax + BPP < rd.len() (checked
+            // above against `lneed`, `rneed`).
+            let (lp, rp) = unsafe { (ld.as_ptr().add(l), rd.as_ptr().add(rw)) };
+            let (m16, bits) = (self.mask16, self.mask_bits);
+            let ssd = match isa.level() {
                 // SAFETY: the level is AVX-512 only in `compare`'s AVX-512 function; the
                 // windows lie inside the buffers (checked above against `lneed`, `rneed`).
                 #[cfg(target_arch = "x86_64")]
                 Level::Avx512 => unsafe {
-                    avx512::ssd::<W>(
-                        ld.as_ptr().add(l),
-                        lstep,
-                        rd.as_ptr().add(rw),
-                        rstep,
-                        n_rows,
-                        self.mask16,
-                        self.mask_bits,
-                        t,
-                    )
+                    avx512::ssd::<W>(lp, lstep, rp, rstep, n_rows, m16, bits, t)
                 },
                 // SAFETY: as above, for AVX2.
                 #[cfg(target_arch = "x86_64")]
-                Level::Avx2 => unsafe {
-                    avx2::ssd::<W>(
-                        ld.as_ptr().add(l),
-                        lstep,
-                        rd.as_ptr().add(rw),
-                        rstep,
-                        n_rows,
-                        self.mask16,
-                        t,
-                    )
-                },
+                Level::Avx2 => unsafe { avx2::ssd::<W>(lp, lstep, rp, rstep, n_rows, m16, t) },
                 _ => ssd::<W>(ld, l, lstep, rd, rw, rstep, n_rows, self.mask, t),
             };
             grads[i] = i32::from(gl) * i32::from(gr);
@@ -518,13 +503,8 @@ mod tests {
             println!("SKIP simd_ssd_matches_the_baseline_one: this CPU has no AVX2");
             return;
         }
-        let mut x = 0x2545_f491u32;
-        let mut byte = || {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            x as u8
-        };
+        let mut next = crate::test_support::xorshift32(0x2545_f491);
+        let mut byte = || next() as u8;
         let (l, r): (Vec<u8>, Vec<u8>) = (0..4096).map(|_| (byte(), byte())).unzip();
         for &isa in isas {
             for t in 0..128u16 {
@@ -587,13 +567,8 @@ mod tests {
 
     #[test]
     fn simd_row_kernel_matches_the_portable_one() {
-        let mut x = 0x9e37_79b9u32;
-        let mut byte = || {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            x as u8
-        };
+        let mut next = crate::test_support::xorshift32(0x9e37_79b9);
+        let mut byte = || next() as u8;
         for t in [0u16, 1, 37, 64, 127, 128] {
             let (mut a, mut b0, mut b1) = ([0u8; 32], [0u8; 32], [0u8; 32]);
             for k in 0..32 {

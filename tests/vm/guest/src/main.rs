@@ -11,20 +11,19 @@
 //! frame against [`pattern`] (right camera, intact, indices increasing) and writes the raw
 //! frames out so that the host can check the same bytes again.
 
+mod output;
 mod pattern;
 
 use std::fs::File;
 use std::io::Write;
-use std::mem::ManuallyDrop;
-use std::os::fd::FromRawFd;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail, ensure};
 use v4l::buffer::Type;
 use v4l::io::mmap::Stream;
 use v4l::io::traits::CaptureStream;
-use v4l::video::{Capture, Output};
-use v4l::{Device, Format, FourCC};
+use v4l::video::Capture;
+use v4l::{Device, FourCC};
 
 const YUYV: &[u8; 4] = b"YUYV";
 
@@ -47,19 +46,9 @@ fn main() -> Result<()> {
 }
 
 fn produce(device: &str, camera: u8, frames: u32, fps: u32) -> Result<()> {
-    let dev = Device::with_path(device).with_context(|| format!("opening {device}"))?;
-    let wanted = Format::new(pattern::WIDTH, pattern::HEIGHT, FourCC::new(YUYV));
-    let got = Output::set_format(&dev, &wanted)
-        .with_context(|| format!("VIDIOC_S_FMT (VIDEO_OUTPUT) on {device}"))?;
-    ensure!(
-        (got.width, got.height, got.fourcc) == (wanted.width, wanted.height, wanted.fourcc),
-        "{device} accepted {got} instead of {wanted}"
-    );
+    // `_dev` outlives `out`.
+    let (_dev, mut out, got) = output::open_output(device, pattern::WIDTH, pattern::HEIGHT, YUYV)?;
     eprintln!("produce: {device} output format {got}");
-
-    // SAFETY: the descriptor belongs to `dev`, which outlives `out`; ManuallyDrop keeps `out`
-    // from closing it. write() on the output side is how v4l2loopback takes frames.
-    let mut out = ManuallyDrop::new(unsafe { File::from_raw_fd(dev.handle().fd()) });
     let period = Duration::from_secs(1) / fps.max(1);
     let start = Instant::now();
     for index in 0..frames {

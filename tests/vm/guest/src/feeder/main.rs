@@ -24,20 +24,20 @@
 //! between a scenario event and a CAN frame: `INDEX SECONDS LEFT RIGHT`, with LEFT and RIGHT
 //! one of `frame`, `skip`, `garbage`, `format`.
 
+#[path = "../output.rs"]
+mod output;
 mod yuyv;
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::mem::ManuallyDrop;
-use std::os::fd::FromRawFd;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, bail, ensure};
 use clap::{Parser, ValueEnum};
 use flyd::mock::MockStereo;
 use hw_mock::Scenario;
-use v4l::video::Output;
-use v4l::{Device, Format, FourCC};
+use v4l::Device;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 enum Camera {
@@ -176,18 +176,9 @@ struct Sink {
 
 impl Sink {
     fn open(path: &str, width: u32, height: u32, fourcc: [u8; 4], bpp: usize) -> Result<Sink> {
-        let dev = Device::with_path(path).with_context(|| format!("opening {path}"))?;
-        let wanted = Format::new(width, height, FourCC::new(&fourcc));
-        let got = Output::set_format(&dev, &wanted)
-            .with_context(|| format!("VIDIOC_S_FMT (VIDEO_OUTPUT) {wanted} on {path}"))?;
-        ensure!(
-            (got.width, got.height, got.fourcc) == (wanted.width, wanted.height, wanted.fourcc),
-            "{path} accepted {got} instead of {wanted}"
-        );
+        // `dev` lives as long as `out` in this struct.
+        let (dev, out, got) = output::open_output(path, width, height, &fourcc)?;
         eprintln!("flyd-feeder: {path} output format {got}");
-        // SAFETY: the descriptor belongs to `dev`, which lives as long as `out` in this struct;
-        // ManuallyDrop keeps `out` from closing it. write() is how v4l2loopback takes frames.
-        let out = ManuallyDrop::new(unsafe { File::from_raw_fd(dev.handle().fd()) });
         Ok(Sink {
             path: path.to_string(),
             _dev: dev,

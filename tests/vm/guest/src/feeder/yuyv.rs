@@ -31,7 +31,7 @@ fn ycbcr(r: u8, g: u8, b: u8) -> (u8, i32, i32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use flyd::capture::convert::yuyv_to_rgb;
+    use flyd::capture::convert::{Layout, yuyv_to_rgb};
 
     /// Through flyd's own converter, colours come back within the rounding of 8-bit YCbCr.
     #[test]
@@ -54,7 +54,7 @@ mod tests {
         assert_eq!(&yuyv[..4], &[16, 128, 16, 128], "black");
         assert_eq!(&yuyv[4..8], &[235, 128, 235, 128], "white");
         let mut back = vec![0; w * h * 3];
-        yuyv_to_rgb(&yuyv, w, h, w * 2, &mut back).expect("converts");
+        yuyv_to_rgb(&yuyv, Layout::new(w, h, w * 2), &mut back).expect("converts");
         for (i, (a, b)) in rgb.iter().zip(&back).enumerate() {
             assert!(a.abs_diff(*b) <= 4, "byte {i}: {a} came back as {b}");
         }
