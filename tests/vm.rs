@@ -13,6 +13,7 @@
 
 #[path = "vm/harness.rs"]
 mod harness;
+mod util;
 
 // The frame pattern the guest's v4l2-smoke writes and checks; checked again here.
 #[path = "vm/guest/src/pattern.rs"]

@@ -321,26 +321,22 @@ pub fn decode_all(frames: &[RecordedFrame]) -> Vec<Frame> {
     frames.iter().map(decode).collect()
 }
 
-pub fn commands(frames: &[Frame]) -> Vec<CommandMsg> {
-    let command = |f: &Frame| {
-        if let Frame::Command(m, _) = f {
-            Some(*m)
-        } else {
-            None
-        }
+/// The messages of variant `$kind` of `Frame` among `$frames`.
+macro_rules! messages {
+    ($frames:expr, $kind:path) => {
+        $frames
+            .iter()
+            .filter_map(|f| if let $kind(m, _) = f { Some(*m) } else { None })
+            .collect()
     };
-    frames.iter().filter_map(command).collect()
+}
+
+pub fn commands(frames: &[Frame]) -> Vec<CommandMsg> {
+    messages!(frames, Frame::Command)
 }
 
 pub fn statuses(frames: &[Frame]) -> Vec<StatusMsg> {
-    let status = |f: &Frame| {
-        if let Frame::Status(m, _) = f {
-            Some(*m)
-        } else {
-            None
-        }
-    };
-    frames.iter().filter_map(status).collect()
+    messages!(frames, Frame::Status)
 }
 
 /// The alive counters of one message kind, in order.

@@ -2,7 +2,21 @@
 #![allow(dead_code)] // each test binary uses a part of it
 
 use std::ffi::OsStr;
-use std::process::Command;
+use std::process::{Command, Output};
+
+/// Runs `cmd` (`what` names it in messages), asserts that it succeeded, printing its stderr if
+/// not, and returns its output.
+pub fn output_ok(cmd: &mut Command, what: &str) -> Output {
+    let output = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {what}: {e}"));
+    assert!(
+        output.status.success(),
+        "{what} failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
 
 /// Runs `flyd ARGS`, asserts that it succeeded (printing its stderr if not), and returns the
 /// JSON document it printed on stdout (replay's summary, bench's report).
@@ -12,14 +26,7 @@ where
     S: AsRef<OsStr>,
 {
     let args: Vec<_> = args.into_iter().map(|a| a.as_ref().to_owned()).collect();
-    let output = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .args(&args)
-        .output()
-        .expect("run flyd");
-    assert!(
-        output.status.success(),
-        "flyd {args:?} failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_flyd"));
+    let output = output_ok(cmd.args(&args), &format!("flyd {args:?}"));
     serde_json::from_slice(&output.stdout).expect("a JSON document on stdout")
 }

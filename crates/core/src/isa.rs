@@ -165,27 +165,12 @@ macro_rules! dispatch {
         [$($p:ident: $pt:ty),*], [$($pre:ident)?], [$($a:ident),*], [$($c:expr),*],
         [$($outer:expr)?], [$($ret:ty)?]
     ) => {{
-        /// # Safety
-        /// The CPU must have AVX2, BMI1 and BMI2.
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,bmi1,bmi2")]
-        #[inline(never)]
-        unsafe fn avx2<$($gen)*>($($p: $pt),*) $(-> $ret)? {
-            // SAFETY: this function runs only at its level (its own contract).
-            let isa = unsafe { $crate::isa::Isa::assumed($crate::isa::Level::Avx2) };
-            $body($($pre,)? isa $(, $a)*)
-        }
+        $crate::isa::dispatch!(@level avx2, Avx2, "avx2,bmi1,bmi2", $body, [$($gen)*],
+            [$($p: $pt),*], [$($pre)?], [$($a),*], [$($ret)?]);
         $crate::isa::dispatch!(@if $cap {
-            /// # Safety
-            /// The CPU must have AVX2, BMI1, BMI2 and AVX-512 F/BW/VL.
-            #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl")]
-            #[inline(never)]
-            unsafe fn avx512<$($gen)*>($($p: $pt),*) $(-> $ret)? {
-                // SAFETY: this function runs only at its level (its own contract).
-                let isa = unsafe { $crate::isa::Isa::assumed($crate::isa::Level::Avx512) };
-                $body($($pre,)? isa $(, $a)*)
-            }
+            $crate::isa::dispatch!(@level avx512, Avx512,
+                "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl", $body, [$($gen)*],
+                [$($p: $pt),*], [$($pre)?], [$($a),*], [$($ret)?]);
         });
         match $isa.level() {
             #[cfg(target_arch = "x86_64")]
@@ -196,6 +181,22 @@ macro_rules! dispatch {
             _ => $body($($outer,)? $crate::isa::Isa::BASELINE $(, $a)*),
         }
     }};
+    // The function `$f` of level `$level` (features `$features`), which calls the body.
+    (
+        @level $f:ident, $level:ident, $features:literal, $body:path, [$($gen:tt)*],
+        [$($p:ident: $pt:ty),*], [$($pre:ident)?], [$($a:ident),*], [$($ret:ty)?]
+    ) => {
+        /// # Safety
+        /// The CPU must have the features this function is compiled with.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        #[inline(never)]
+        unsafe fn $f<$($gen)*>($($p: $pt),*) $(-> $ret)? {
+            // SAFETY: this function runs only at its level (its own contract).
+            let isa = unsafe { $crate::isa::Isa::assumed($crate::isa::Level::$level) };
+            $body($($pre,)? isa $(, $a)*)
+        }
+    };
     (@if Avx512 { $($t:tt)* }) => { $($t)* };
     (@if Avx2 { $($t:tt)* }) => {};
     // SAFETY: an `Isa` at AVX-512 proves the CPU has AVX-512 F/BW/VL, AVX2, BMI1 and BMI2.

@@ -30,10 +30,11 @@ pub(super) struct Breeder {
 
 impl Breeder {
     pub(super) fn new(flies: usize) -> Self {
+        let n = flies;
         Self {
-            breeders: vec![0; flies],
-            breeder_fitness: vec![0.0; flies],
-            coins: vec![0; flies],
+            breeders: vec![0; n],
+            breeder_fitness: vec![0.0; n],
+            coins: vec![0; n],
         }
     }
 

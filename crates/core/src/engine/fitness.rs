@@ -255,12 +255,13 @@ pub(crate) struct Scratch {
 impl Scratch {
     /// Room for evaluating `flies` flies at once.
     pub(crate) fn new(flies: usize) -> Self {
+        let n = flies;
         Self {
-            lo: vec![0; flies],
-            ro: vec![0; flies],
-            t: vec![0; flies],
-            grads: vec![0; flies],
-            ssd: vec![0; flies],
+            lo: vec![0; n],
+            ro: vec![0; n],
+            t: vec![0; n],
+            grads: vec![0; n],
+            ssd: vec![0; n],
         }
     }
 
