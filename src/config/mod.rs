@@ -1,0 +1,416 @@
+//! The daemon's configuration file (`flyd run --config FILE`, `flyd check-config FILE`).
+//!
+//! TOML, every table `deny_unknown_fields`: a misspelt key is an error, not a silently ignored
+//! setting. Every error names the file and the key (dotted, as written in the file), e.g.
+//! `config file /etc/flyd/flyd.toml: key 'engine.max_depth': must be greater than min_depth`.
+//! `config/flyd.toml` documents every key; `config/demo.toml` is the mock demo.
+//!
+//! Loading ([`DaemonConfig::load`]) checks syntax, types and impossible values (depth range,
+//! thresholds out of order, zero periods, ...). [`check`] additionally loads the calibration and
+//! builds an engine once, which is what `flyd check-config` and start-up run.
+//!
+//! Tests build a [`DaemonConfig`] in code ([`DaemonConfig::with_rig`]) rather than from text.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+use thiserror::Error;
+
+use crate::capture::CaptureFormat;
+use flyd_core::calib::{self, CalibError};
+use flyd_core::can::CanConfig;
+use flyd_core::decision::Command;
+use flyd_core::decision::{DecisionConfig, DecisionConfigError};
+use flyd_core::engine::{Engine, EngineError, EngineParams};
+use flyd_core::geometry::StereoRig;
+use flyd_core::status::FaultBits;
+
+/// Why a configuration cannot be used.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("config file {}", file.display())]
+    Io {
+        file: PathBuf,
+        #[source]
+        error: std::io::Error,
+    },
+    /// Syntax, an unknown key, a wrong type or a missing key.
+    #[error("config file {}: {}{message}", file.display(), key_prefix(key))]
+    Parse {
+        file: PathBuf,
+        key: Option<String>,
+        message: String,
+    },
+    /// A well-formed value that cannot work.
+    #[error("config file {}: key '{key}': {reason}", file.display())]
+    Invalid {
+        file: PathBuf,
+        key: String,
+        reason: String,
+    },
+    /// The calibration the config points to cannot be loaded.
+    #[error("config file {}: key 'calibration'", file.display())]
+    Calibration {
+        file: PathBuf,
+        #[source]
+        error: CalibError,
+    },
+}
+
+fn key_prefix(key: &Option<String>) -> String {
+    key.as_ref()
+        .map(|k| format!("key '{k}': "))
+        .unwrap_or_default()
+}
+
+impl ConfigError {
+    /// The offending key, dotted (`engine.max_depth`), when the error is about one.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            Self::Io { .. } => None,
+            Self::Parse { key, .. } => key.as_deref(),
+            Self::Invalid { key, .. } => Some(key),
+            Self::Calibration { .. } => Some("calibration"),
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The resolved configuration
+
+/// Where the frames come from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CameraSource {
+    /// Two V4L2 devices.
+    Devices { left: PathBuf, right: PathBuf },
+    /// A hw-mock scenario rendered for both cameras (`mock = "pedestrian-steps-in"`).
+    Mock { scenario: String },
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct CamerasConfig {
+    pub source: CameraSource,
+    pub width: u32,
+    pub height: u32,
+    /// Nominal frame rate, frames per second (a whole number for V4L2 devices).
+    pub fps: f64,
+    pub pixel_format: CaptureFormat,
+    /// Left and right frames further apart than this (capture timestamps) are not a pair.
+    pub timestamp_tolerance: Duration,
+    /// A camera with no frame for this many frame periods is stale (fault).
+    pub stale_frames: u32,
+}
+
+impl CamerasConfig {
+    pub fn frame_period(&self) -> Duration {
+        Duration::from_secs_f64(1.0 / self.fps)
+    }
+
+    /// No frame for this long: the camera is stale.
+    pub fn stale_timeout(&self) -> Duration {
+        Duration::from_secs_f64(f64::from(self.stale_frames) / self.fps)
+    }
+}
+
+/// Where the stereo rig comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CalibrationSource {
+    /// A calibration file (absolute, or resolved against the config file's directory).
+    File(PathBuf),
+    /// The rig hw-mock renders with (`builtin = "mock"`), at the cameras' size.
+    BuiltinMock,
+    /// A rig given in code (tests).
+    Rig(Box<StereoRig>),
+}
+
+/// The evolution thread's timing and its nearest-obstacle estimate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvolutionConfig {
+    /// One generation per period; `None` runs generations back to back.
+    pub generation_period: Option<Duration>,
+    /// Generations run back to back, without waiting for the period, when a new pair shows
+    /// a change (the engine's change map is not empty): the population converges on what
+    /// appeared within the frame that showed it instead of over several periods. 1 = none.
+    pub burst_generations: u32,
+    /// A generation longer than this is an overrun (fault EVOLUTION_OVERRUN).
+    pub max_generation_time: Duration,
+    /// Generations before the danger is trusted: the initial random population gives chance
+    /// matches a large weight until it has converged on the scene (the paper: 10 to 30).
+    /// Until then the state stays INIT and the command the safe one.
+    pub warmup_generations: u64,
+    /// Capacity of the snapshot channel to the control thread.
+    pub snapshot_queue: usize,
+    /// Consecutive rejected left/right candidates before STEREO_SKEW is raised.
+    pub skew_fault_rejects: u32,
+    /// Fraction of matching flies (the engine's `matched`) under which a new pair counts as
+    /// matching nowhere (measured on hw-mock: 0.97-0.98 converged, 0.77 for the random initial
+    /// flies, 0.03-0.04 with a camera delivering noise). 0 disables the check.
+    pub blind_matched: f64,
+    /// Consecutive new pairs matching nowhere before CAMERA_ERROR (perception blind).
+    pub blind_pairs: u32,
+    /// Half-width of the vehicle's lane, metres (vehicle x): flies outside it are not obstacles.
+    pub lane_half_width: f64,
+    /// How many of the fittest in-lane flies the nearest-obstacle estimate looks at.
+    pub obstacle_best_flies: usize,
+    /// Fewer fit in-lane flies than this: no obstacle is reported.
+    pub obstacle_min_flies: usize,
+}
+
+impl Default for EvolutionConfig {
+    fn default() -> Self {
+        Self {
+            generation_period: Some(Duration::from_millis(10)),
+            burst_generations: 12,
+            max_generation_time: Duration::from_millis(50),
+            warmup_generations: 30,
+            snapshot_queue: 64,
+            skew_fault_rejects: 3,
+            blind_matched: 0.25,
+            blind_pairs: 3,
+            lane_half_width: 1.0,
+            obstacle_best_flies: 50,
+            obstacle_min_flies: 5,
+        }
+    }
+}
+
+/// The control thread's supervision.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControlConfig {
+    /// No snapshot for this long: SNAPSHOT_STALE.
+    pub snapshot_timeout: Duration,
+    /// Not running (both cameras delivering, a generation done) this long after start: the
+    /// stale faults are raised instead of waiting in INIT.
+    pub startup_timeout: Duration,
+}
+
+impl Default for ControlConfig {
+    fn default() -> Self {
+        Self {
+            snapshot_timeout: Duration::from_millis(100),
+            startup_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Where the CAN frames go.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CanTarget {
+    /// A SocketCAN interface (`can0`, `vcan0`).
+    Interface(String),
+    /// candump log lines to a file (`-` = stdout), written as if on `iface`.
+    Log { path: PathBuf, iface: String },
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CanSection {
+    pub target: CanTarget,
+    pub messages: CanConfig,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// JSON lines when stdout is not a terminal (journald), human-readable on a terminal.
+    Auto,
+    Json,
+    Human,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoggingConfig {
+    pub format: LogFormat,
+    /// Maximum level: error, warn, info, debug, trace.
+    pub level: tracing::Level,
+    /// Period of the stats event.
+    pub stats_interval: Duration,
+}
+
+impl Default for LoggingConfig {
+    fn default() -> Self {
+        Self {
+            format: LogFormat::Auto,
+            level: tracing::Level::INFO,
+            stats_interval: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Everything `flyd run` needs besides the hardware handles.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonConfig {
+    /// The file this came from (for messages); `None` when built in code.
+    pub file: Option<PathBuf>,
+    pub cameras: CamerasConfig,
+    pub calibration: CalibrationSource,
+    pub engine: EngineParams,
+    pub decision: DecisionConfig,
+    pub evolution: EvolutionConfig,
+    pub control: ControlConfig,
+    pub can: CanSection,
+    pub logging: LoggingConfig,
+}
+
+impl DaemonConfig {
+    /// A configuration for a rig given in code: 30 fps cameras of the rig's size, default
+    /// everything else, CAN to a candump log on stdout (tests replace the bus anyway).
+    pub fn with_rig(rig: StereoRig) -> Self {
+        let (width, height) = (rig.left.width(), rig.left.height());
+        Self {
+            file: None,
+            cameras: CamerasConfig {
+                source: CameraSource::Mock {
+                    scenario: "in-code".into(),
+                },
+                width,
+                height,
+                fps: 30.0,
+                pixel_format: CaptureFormat::Yuyv,
+                timestamp_tolerance: Duration::from_millis(10),
+                stale_frames: 3,
+            },
+            calibration: CalibrationSource::Rig(Box::new(rig)),
+            engine: EngineParams::default(),
+            decision: DecisionConfig::default(),
+            evolution: EvolutionConfig::default(),
+            control: ControlConfig::default(),
+            can: CanSection {
+                target: CanTarget::Log {
+                    path: "-".into(),
+                    iface: "vcan0".into(),
+                },
+                messages: CanConfig::default(),
+            },
+            logging: LoggingConfig::default(),
+        }
+    }
+
+    /// Reads and checks a config file (syntax, types, values; not the calibration file).
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io {
+            file: path.to_path_buf(),
+            error,
+        })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Parses config text; `path` is where it came from (for messages and relative paths).
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            file: path.to_path_buf(),
+            key: e.span().and_then(|span| key_at(text, span.start)),
+            message: e.message().trim_end().to_string(),
+        })?;
+        raw.resolve(path)
+            .map_err(|(key, reason)| ConfigError::Invalid {
+                file: path.to_path_buf(),
+                key,
+                reason,
+            })
+    }
+
+    fn file_for_messages(&self) -> PathBuf {
+        self.file
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("<built-in>"))
+    }
+
+    /// The rig at the cameras' size, as the engine will use it.
+    pub fn load_rig(&self) -> Result<StereoRig, ConfigError> {
+        let file = self.file_for_messages();
+        let invalid = |reason: String| ConfigError::Invalid {
+            file: file.clone(),
+            key: "calibration".into(),
+            reason,
+        };
+        let rig = match &self.calibration {
+            CalibrationSource::Rig(rig) => (**rig).clone(),
+            CalibrationSource::File(path) => {
+                calib::load(path)
+                    .map_err(|error| ConfigError::Calibration {
+                        file: file.clone(),
+                        error,
+                    })?
+                    .rig
+            }
+            CalibrationSource::BuiltinMock => {
+                crate::mock::mock_rig(self.cameras.width, self.cameras.height)
+                    .map_err(|e| invalid(format!("built-in mock rig: {e}")))?
+            }
+        };
+        for (side, cam) in [("left", &rig.left), ("right", &rig.right)] {
+            if (cam.width(), cam.height()) != (self.cameras.width, self.cameras.height) {
+                return Err(invalid(format!(
+                    "the {side} camera is calibrated at {}x{} but cameras.width x cameras.height \
+                     is {}x{}",
+                    cam.width(),
+                    cam.height(),
+                    self.cameras.width,
+                    self.cameras.height
+                )));
+            }
+        }
+        Ok(rig)
+    }
+}
+
+/// Everything start-up checks before opening any device: the config, the calibration, and an
+/// engine built once on them (common field of view over the depth range).
+pub fn check(path: &Path) -> Result<DaemonConfig, ConfigError> {
+    let config = DaemonConfig::load(path)?;
+    let rig = config.load_rig()?;
+    Engine::new(&rig, config.engine.clone()).map_err(|e| {
+        let key = match &e {
+            EngineError::Param(p) => format!("engine.{}", p.key),
+            EngineError::NoCommonView { .. } => "engine.max_depth".into(),
+            EngineError::NotInvertible | EngineError::FrameSize { .. } => "calibration".into(),
+        };
+        ConfigError::Invalid {
+            file: path.to_path_buf(),
+            key,
+            reason: e.to_string(),
+        }
+    })?;
+    Ok(config)
+}
+
+/// The dotted key at byte `offset` of a TOML text: the `[table]` header above it and the key
+/// of its line (for the span toml gives with an error).
+fn key_at(text: &str, offset: usize) -> Option<String> {
+    let offset = offset.min(text.len());
+    let line_start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[offset..].find('\n').map_or(text.len(), |i| offset + i);
+    let line = text[line_start..line_end].trim();
+    let header = |l: &str| {
+        l.strip_prefix('[').map(|l| {
+            l.trim_start_matches('[')
+                .trim_end_matches(']')
+                .trim()
+                .to_string()
+        })
+    };
+    if line.starts_with('[') {
+        return header(line);
+    }
+    let key = line.split('=').next()?.trim().trim_matches('"');
+    if key.is_empty() || key.starts_with('#') {
+        return None;
+    }
+    let table = text[..line_start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .and_then(header);
+    Some(match table {
+        Some(t) => format!("{t}.{key}"),
+        None => key.to_string(),
+    })
+}
+
+mod raw;
+#[cfg(test)]
+mod tests;
+
+use raw::RawConfig;

@@ -1,0 +1,513 @@
+//! The configuration file's shape (`deny_unknown_fields` everywhere) and its resolution into
+//! the [`DaemonConfig`] types: each check names the key it refuses.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::*;
+
+type Invalid = (String, String);
+
+fn bad<T>(key: &str, reason: impl Into<String>) -> Result<T, Invalid> {
+    Err((key.to_string(), reason.into()))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawConfig {
+    cameras: RawCameras,
+    calibration: RawCalibration,
+    #[serde(default)]
+    engine: EngineParams,
+    #[serde(default)]
+    decision: RawDecision,
+    #[serde(default)]
+    evolution: RawEvolution,
+    #[serde(default)]
+    control: RawControl,
+    can: RawCan,
+    #[serde(default)]
+    logging: RawLogging,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCameras {
+    left: Option<PathBuf>,
+    right: Option<PathBuf>,
+    mock: Option<String>,
+    width: u32,
+    height: u32,
+    fps: f64,
+    #[serde(default = "default_pixel_format")]
+    pixel_format: CaptureFormat,
+    #[serde(default = "default_tolerance_ms")]
+    timestamp_tolerance_ms: f64,
+    #[serde(default = "default_stale_frames")]
+    stale_frames: u32,
+}
+
+fn default_pixel_format() -> CaptureFormat {
+    CaptureFormat::Yuyv
+}
+fn default_tolerance_ms() -> f64 {
+    10.0
+}
+fn default_stale_frames() -> u32 {
+    3
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCalibration {
+    file: Option<PathBuf>,
+    builtin: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawDecision {
+    slow_threshold: f64,
+    stop_threshold: f64,
+    release_ratio: f64,
+    slow_hold_ms: u64,
+    stop_hold_ms: u64,
+    safe_command: SafeCommand,
+    slow_decel: f64,
+    stop_decel: f64,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+enum SafeCommand {
+    #[serde(rename = "SLOW")]
+    Slow,
+    #[serde(rename = "STOP")]
+    Stop,
+    #[serde(rename = "CLEAR")]
+    Clear,
+}
+
+impl Default for RawDecision {
+    fn default() -> Self {
+        let d = DecisionConfig::default();
+        Self {
+            slow_threshold: d.slow_threshold,
+            stop_threshold: d.stop_threshold,
+            release_ratio: d.release_ratio,
+            slow_hold_ms: d.slow_hold.as_millis() as u64,
+            stop_hold_ms: d.stop_hold.as_millis() as u64,
+            safe_command: SafeCommand::Slow,
+            slow_decel: d.slow_decel,
+            stop_decel: d.stop_decel,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawEvolution {
+    /// 0 = as fast as possible.
+    generation_period_ms: f64,
+    burst_generations: u32,
+    max_generation_ms: f64,
+    warmup_generations: u64,
+    snapshot_queue: usize,
+    skew_fault_rejects: u32,
+    blind_matched: f64,
+    blind_pairs: u32,
+    lane_half_width: f64,
+    obstacle_best_flies: usize,
+    obstacle_min_flies: usize,
+}
+
+impl Default for RawEvolution {
+    fn default() -> Self {
+        let d = EvolutionConfig::default();
+        Self {
+            generation_period_ms: d.generation_period.map_or(0.0, |p| p.as_secs_f64() * 1e3),
+            burst_generations: d.burst_generations,
+            max_generation_ms: d.max_generation_time.as_secs_f64() * 1e3,
+            warmup_generations: d.warmup_generations,
+            snapshot_queue: d.snapshot_queue,
+            skew_fault_rejects: d.skew_fault_rejects,
+            blind_matched: d.blind_matched,
+            blind_pairs: d.blind_pairs,
+            lane_half_width: d.lane_half_width,
+            obstacle_best_flies: d.obstacle_best_flies,
+            obstacle_min_flies: d.obstacle_min_flies,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawControl {
+    snapshot_timeout_ms: f64,
+    startup_timeout_ms: f64,
+}
+
+impl Default for RawControl {
+    fn default() -> Self {
+        let d = ControlConfig::default();
+        Self {
+            snapshot_timeout_ms: d.snapshot_timeout.as_secs_f64() * 1e3,
+            startup_timeout_ms: d.startup_timeout.as_secs_f64() * 1e3,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCan {
+    interface: Option<String>,
+    log: Option<PathBuf>,
+    #[serde(default = "default_log_iface")]
+    log_interface: String,
+    #[serde(default)]
+    messages: CanConfig,
+}
+
+fn default_log_iface() -> String {
+    "can0".into()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawLogging {
+    format: LogFormat,
+    level: String,
+    stats_interval_s: f64,
+}
+
+impl Default for RawLogging {
+    fn default() -> Self {
+        Self {
+            format: LogFormat::Auto,
+            level: "info".into(),
+            stats_interval_s: 10.0,
+        }
+    }
+}
+
+/// A positive, finite number of milliseconds.
+fn millis(key: &str, ms: f64) -> Result<Duration, Invalid> {
+    if ms.is_finite() && ms > 0.0 && ms < 1e9 {
+        Ok(Duration::from_secs_f64(ms / 1e3))
+    } else {
+        bad(
+            key,
+            format!("must be a positive number of milliseconds, got {ms}"),
+        )
+    }
+}
+
+impl RawConfig {
+    pub(super) fn resolve(self, path: &Path) -> Result<DaemonConfig, Invalid> {
+        let base = path.parent().unwrap_or(Path::new("."));
+        let cameras = self.cameras.resolve()?;
+        let calibration = self.calibration.resolve(base)?;
+        if let Err(e) = self.engine.validate() {
+            return bad(&format!("engine.{}", e.key), e.reason);
+        }
+        let decision = self.decision.resolve()?;
+        let evolution = self.evolution.resolve(&self.engine)?;
+        let control = self.control.resolve()?;
+        let can = self.can.resolve(base)?;
+        let logging = self.logging.resolve()?;
+        if matches!(cameras.source, CameraSource::Devices { .. })
+            && calibration == CalibrationSource::BuiltinMock
+        {
+            return bad(
+                "calibration.builtin",
+                "the built-in mock rig only fits mock cameras (cameras.mock)",
+            );
+        }
+        Ok(DaemonConfig {
+            file: Some(path.to_path_buf()),
+            cameras,
+            calibration,
+            engine: self.engine,
+            decision,
+            evolution,
+            control,
+            can,
+            logging,
+        })
+    }
+}
+
+impl RawCameras {
+    fn resolve(self) -> Result<CamerasConfig, Invalid> {
+        let source = match (self.left, self.right, self.mock) {
+            (None, None, Some(scenario)) => {
+                match hw_mock::Scenario::by_name(&scenario) {
+                    None => {
+                        return bad(
+                            "cameras.mock",
+                            format!(
+                                "unknown scenario '{scenario}' (known: {})",
+                                hw_mock::Scenario::names().join(", ")
+                            ),
+                        );
+                    }
+                    Some(s) if !s.live() => {
+                        return bad(
+                            "cameras.mock",
+                            format!(
+                                "scenario '{scenario}' renders every frame in full, a few a \
+                                 second: use it with `flyd replay --scenario`, not as a live \
+                                 camera"
+                            ),
+                        );
+                    }
+                    Some(_) => {}
+                }
+                CameraSource::Mock { scenario }
+            }
+            (Some(left), Some(right), None) => {
+                if left == right {
+                    return bad("cameras.right", "must be another device than cameras.left");
+                }
+                CameraSource::Devices { left, right }
+            }
+            (_, _, Some(_)) => {
+                return bad(
+                    "cameras.mock",
+                    "give either mock = \"scenario\" or left and right devices, not both",
+                );
+            }
+            (None, _, None) => return bad("cameras.left", "missing (or give cameras.mock)"),
+            (_, None, None) => return bad("cameras.right", "missing (or give cameras.mock)"),
+        };
+        if !(16..=8192).contains(&self.width) {
+            return bad(
+                "cameras.width",
+                format!("must be within 16..=8192, got {}", self.width),
+            );
+        }
+        if !(16..=8192).contains(&self.height) {
+            return bad(
+                "cameras.height",
+                format!("must be within 16..=8192, got {}", self.height),
+            );
+        }
+        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= 1000.0) {
+            return bad(
+                "cameras.fps",
+                format!("must be within (0, 1000], got {}", self.fps),
+            );
+        }
+        let tolerance = millis(
+            "cameras.timestamp_tolerance_ms",
+            self.timestamp_tolerance_ms,
+        )?;
+        if self.stale_frames == 0 {
+            return bad("cameras.stale_frames", "must be at least 1");
+        }
+        Ok(CamerasConfig {
+            source,
+            width: self.width,
+            height: self.height,
+            fps: self.fps,
+            pixel_format: self.pixel_format,
+            timestamp_tolerance: tolerance,
+            stale_frames: self.stale_frames,
+        })
+    }
+}
+
+impl RawCalibration {
+    fn resolve(self, base: &Path) -> Result<CalibrationSource, Invalid> {
+        match (self.file, self.builtin) {
+            (Some(file), None) => Ok(CalibrationSource::File(base.join(file))),
+            (None, Some(name)) if name == "mock" => Ok(CalibrationSource::BuiltinMock),
+            (None, Some(name)) => bad(
+                "calibration.builtin",
+                format!("unknown built-in rig '{name}' (the only one is \"mock\")"),
+            ),
+            (Some(_), Some(_)) => bad("calibration", "give either file or builtin, not both"),
+            (None, None) => bad("calibration", "give file = \"PATH\" or builtin = \"mock\""),
+        }
+    }
+}
+
+impl RawDecision {
+    fn resolve(self) -> Result<DecisionConfig, Invalid> {
+        let config = DecisionConfig {
+            slow_threshold: self.slow_threshold,
+            stop_threshold: self.stop_threshold,
+            release_ratio: self.release_ratio,
+            slow_hold: Duration::from_millis(self.slow_hold_ms),
+            stop_hold: Duration::from_millis(self.stop_hold_ms),
+            safe_command: match self.safe_command {
+                SafeCommand::Slow => Command::Slow,
+                SafeCommand::Stop => Command::Stop,
+                SafeCommand::Clear => Command::Clear,
+            },
+            fault_mask: FaultBits::all(),
+            slow_decel: self.slow_decel,
+            stop_decel: self.stop_decel,
+        };
+        match config.validate() {
+            Ok(()) => Ok(config),
+            Err(e) => {
+                let key = match e {
+                    DecisionConfigError::Thresholds { slow, .. } => {
+                        if slow.is_finite() && slow > 0.0 {
+                            "decision.stop_threshold"
+                        } else {
+                            "decision.slow_threshold"
+                        }
+                    }
+                    DecisionConfigError::ReleaseRatio(_) => "decision.release_ratio",
+                    DecisionConfigError::ZeroHold => {
+                        if self.slow_hold_ms == 0 {
+                            "decision.slow_hold_ms"
+                        } else {
+                            "decision.stop_hold_ms"
+                        }
+                    }
+                    DecisionConfigError::UnsafeFallback => "decision.safe_command",
+                    DecisionConfigError::Decel { command, .. } => {
+                        if command == Command::Slow {
+                            "decision.slow_decel"
+                        } else {
+                            "decision.stop_decel"
+                        }
+                    }
+                };
+                bad(key, e.to_string())
+            }
+        }
+    }
+}
+
+impl RawEvolution {
+    fn resolve(self, engine: &EngineParams) -> Result<EvolutionConfig, Invalid> {
+        let generation_period = if self.generation_period_ms == 0.0 {
+            None
+        } else {
+            Some(millis(
+                "evolution.generation_period_ms",
+                self.generation_period_ms,
+            )?)
+        };
+        let max_generation_time = millis("evolution.max_generation_ms", self.max_generation_ms)?;
+        if !(1..=1000).contains(&self.burst_generations) {
+            return bad("evolution.burst_generations", "must be within 1..=1000");
+        }
+        if !(1..=65_536).contains(&self.snapshot_queue) {
+            return bad("evolution.snapshot_queue", "must be within 1..=65536");
+        }
+        if self.skew_fault_rejects == 0 {
+            return bad("evolution.skew_fault_rejects", "must be at least 1");
+        }
+        if !(0.0..=1.0).contains(&self.blind_matched) {
+            return bad(
+                "evolution.blind_matched",
+                "must be within [0, 1] (0 disables the check)",
+            );
+        }
+        if self.blind_pairs == 0 {
+            return bad("evolution.blind_pairs", "must be at least 1");
+        }
+        if !(self.lane_half_width.is_finite() && self.lane_half_width > 0.0) {
+            return bad("evolution.lane_half_width", "must be > 0 metres");
+        }
+        if !(1..=engine.flies).contains(&self.obstacle_best_flies) {
+            return bad(
+                "evolution.obstacle_best_flies",
+                format!("must be within 1..=engine.flies ({})", engine.flies),
+            );
+        }
+        if !(1..=self.obstacle_best_flies).contains(&self.obstacle_min_flies) {
+            return bad(
+                "evolution.obstacle_min_flies",
+                "must be within 1..=evolution.obstacle_best_flies",
+            );
+        }
+        Ok(EvolutionConfig {
+            generation_period,
+            burst_generations: self.burst_generations,
+            max_generation_time,
+            warmup_generations: self.warmup_generations,
+            snapshot_queue: self.snapshot_queue,
+            skew_fault_rejects: self.skew_fault_rejects,
+            blind_matched: self.blind_matched,
+            blind_pairs: self.blind_pairs,
+            lane_half_width: self.lane_half_width,
+            obstacle_best_flies: self.obstacle_best_flies,
+            obstacle_min_flies: self.obstacle_min_flies,
+        })
+    }
+}
+
+impl RawControl {
+    fn resolve(self) -> Result<ControlConfig, Invalid> {
+        Ok(ControlConfig {
+            snapshot_timeout: millis("control.snapshot_timeout_ms", self.snapshot_timeout_ms)?,
+            startup_timeout: millis("control.startup_timeout_ms", self.startup_timeout_ms)?,
+        })
+    }
+}
+
+impl RawCan {
+    fn resolve(self, base: &Path) -> Result<CanSection, Invalid> {
+        let target = match (self.interface, self.log) {
+            (Some(iface), None) => {
+                if iface.is_empty() || iface.len() > 15 {
+                    return bad(
+                        "can.interface",
+                        "must be an interface name of 1 to 15 bytes",
+                    );
+                }
+                CanTarget::Interface(iface)
+            }
+            (None, Some(log)) => CanTarget::Log {
+                path: if log.as_os_str() == "-" {
+                    log
+                } else {
+                    base.join(log)
+                },
+                iface: self.log_interface,
+            },
+            (Some(_), Some(_)) => return bad("can", "give either interface or log, not both"),
+            (None, None) => return bad("can", "give interface = \"can0\" or log = \"PATH\""),
+        };
+        if let Err(e) = self.messages.validate() {
+            return bad("can.messages", e.to_string());
+        }
+        Ok(CanSection {
+            target,
+            messages: self.messages,
+        })
+    }
+}
+
+impl RawLogging {
+    fn resolve(self) -> Result<LoggingConfig, Invalid> {
+        let level = self.level.parse::<tracing::Level>().or_else(|_| {
+            bad(
+                "logging.level",
+                format!(
+                    "'{}' is not one of error, warn, info, debug, trace",
+                    self.level
+                ),
+            )
+        })?;
+        let stats = self.stats_interval_s;
+        if !(stats.is_finite() && stats > 0.0 && stats < 1e6) {
+            return bad(
+                "logging.stats_interval_s",
+                format!("must be > 0 seconds, got {stats}"),
+            );
+        }
+        Ok(LoggingConfig {
+            format: self.format,
+            level,
+            stats_interval: Duration::from_secs_f64(stats),
+        })
+    }
+}

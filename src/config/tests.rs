@@ -1,0 +1,215 @@
+use super::*;
+
+const MINIMAL: &str = r#"
+[cameras]
+left = "/dev/video0"
+right = "/dev/video1"
+width = 640
+height = 480
+fps = 30
+
+[calibration]
+file = "rig.toml"
+
+[can]
+interface = "can0"
+"#;
+
+fn parse(text: &str) -> Result<DaemonConfig, ConfigError> {
+    DaemonConfig::from_toml(text, Path::new("/etc/flyd/flyd.toml"))
+}
+
+/// `text` must be rejected with an error naming `key` and containing `words`.
+fn check_err(text: &str, key: &str, words: &str) {
+    let e = parse(text).expect_err("must be rejected");
+    let msg = e.to_string();
+    assert_eq!(e.key(), Some(key), "{msg}");
+    assert!(msg.contains("/etc/flyd/flyd.toml"), "{msg}");
+    assert!(msg.contains(key), "{msg}");
+    assert!(msg.contains(words), "{msg}");
+}
+
+/// MINIMAL with `extra` appended to the end of the `[table]` it names (or the file).
+fn with(table: &str, extra: &str) -> String {
+    let header = format!("[{table}]\n");
+    match MINIMAL.find(&header) {
+        Some(i) => {
+            let at = i + header.len();
+            format!("{}{extra}\n{}", &MINIMAL[..at], &MINIMAL[at..])
+        }
+        None => format!("{MINIMAL}\n{header}{extra}\n"),
+    }
+}
+
+#[test]
+fn minimal_config_resolves_with_defaults() {
+    let c = parse(MINIMAL).expect("valid");
+    assert_eq!(
+        c.cameras.source,
+        CameraSource::Devices {
+            left: "/dev/video0".into(),
+            right: "/dev/video1".into()
+        }
+    );
+    assert_eq!(
+        c.calibration,
+        CalibrationSource::File("/etc/flyd/rig.toml".into()),
+        "relative to the config file"
+    );
+    assert_eq!(c.can.target, CanTarget::Interface("can0".into()));
+    assert_eq!(c.engine, EngineParams::default());
+    assert_eq!(c.decision, DecisionConfig::default());
+    assert_eq!(c.cameras.stale_timeout(), Duration::from_millis(100));
+}
+
+#[test]
+fn unknown_keys_are_named() {
+    check_err(
+        &with("cameras", "exposure = 3"),
+        "cameras.exposure",
+        "unknown field",
+    );
+    check_err(&with("engine", "flys = 3"), "engine.flys", "unknown field");
+    check_err(
+        &with("engine.roi", "max_heigth = 3.0"),
+        "engine.roi.max_heigth",
+        "unknown",
+    );
+    check_err(
+        &with("can.messages.command", "id = 0x200\nperiod = 3"),
+        "can.messages.command.period",
+        "unknown",
+    );
+    check_err(
+        &format!("verbose = true\n{MINIMAL}"),
+        "verbose",
+        "unknown field",
+    );
+}
+
+#[test]
+fn wrong_types_are_named() {
+    check_err(
+        &with("decision", "stop_threshold = \"high\""),
+        "decision.stop_threshold",
+        "invalid type",
+    );
+    check_err(
+        &with("cameras", "pixel_format = \"RGB3\""),
+        "cameras.pixel_format",
+        "unknown variant",
+    );
+}
+
+#[test]
+fn impossible_values_are_named() {
+    check_err(
+        &with("engine", "min_depth = 30.0"),
+        "engine.max_depth",
+        "greater than min_depth",
+    );
+    check_err(
+        &with("decision", "slow_threshold = 0.8\nstop_threshold = 0.4"),
+        "decision.stop_threshold",
+        "slow",
+    );
+    check_err(
+        &with("decision", "safe_command = \"CLEAR\""),
+        "decision.safe_command",
+        "SLOW or STOP",
+    );
+    check_err(
+        &with("decision", "stop_hold_ms = 0"),
+        "decision.stop_hold_ms",
+        "> 0",
+    );
+    check_err(
+        &with("cameras", "timestamp_tolerance_ms = 0"),
+        "cameras.timestamp_tolerance_ms",
+        "positive",
+    );
+    check_err(
+        &with("cameras", "stale_frames = 0"),
+        "cameras.stale_frames",
+        "at least 1",
+    );
+    check_err(
+        &with("evolution", "blind_pairs = 0"),
+        "evolution.blind_pairs",
+        "at least 1",
+    );
+    check_err(
+        &with("evolution", "burst_generations = 0"),
+        "evolution.burst_generations",
+        "1..=1000",
+    );
+    check_err(
+        &with("evolution", "max_generation_ms = -1"),
+        "evolution.max_generation_ms",
+        "positive",
+    );
+    check_err(
+        &with("logging", "level = \"loud\""),
+        "logging.level",
+        "loud",
+    );
+    check_err(
+        &with(
+            "can.messages.status",
+            "id = 0x120\ndata_id = 0x121\nperiod_ms = 20",
+        ),
+        "can.messages",
+        "share CAN ID",
+    );
+    check_err(
+        &MINIMAL.replace("left = \"/dev/video0\"", "mock = \"empty-road\""),
+        "cameras.mock",
+        "not both",
+    );
+    let driving = MINIMAL
+        .replace("left = \"/dev/video0\"\n", "mock = \"driving\"\n")
+        .replace("right = \"/dev/video1\"\n", "");
+    check_err(&driving, "cameras.mock", "flyd replay");
+    check_err(
+        &MINIMAL.replace("file = \"rig.toml\"", "builtin = \"mock\""),
+        "calibration.builtin",
+        "mock cameras",
+    );
+}
+
+#[test]
+fn key_at_finds_table_and_key() {
+    let text = "a = 1\n[t.u]\nb = 2\n  c=3\n";
+    assert_eq!(key_at(text, 0).as_deref(), Some("a"));
+    assert_eq!(
+        key_at(text, text.find("b =").unwrap()).as_deref(),
+        Some("t.u.b")
+    );
+    assert_eq!(
+        key_at(text, text.find("c=").unwrap() + 2).as_deref(),
+        Some("t.u.c")
+    );
+    assert_eq!(
+        key_at(text, text.find("[t").unwrap()).as_deref(),
+        Some("t.u")
+    );
+}
+
+#[test]
+fn damaged_config_files_are_errors_naming_the_file_never_a_panic() {
+    use flyd_core::test_support::damage_each;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+    let (mut loaded, mut refused) = (0, 0);
+    for name in ["flyd.toml", "demo.toml"] {
+        let file = path.join(name);
+        let text = std::fs::read_to_string(&file).expect("shipped config");
+        let parse = |t: &str| DaemonConfig::from_toml(t, &file);
+        let (l, r) = damage_each(&text, 0..1_500, name, parse, |_, _| {});
+        (loaded, refused) = (loaded + l, refused + r);
+    }
+    println!("damaged configs: {loaded} loaded, {refused} refused");
+    assert!(
+        loaded > 100 && refused > 1000,
+        "{loaded} loaded, {refused} refused"
+    );
+}
