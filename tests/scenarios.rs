@@ -4,7 +4,7 @@
 //! - driving down an empty road (the whole image flowing) never reaches STOP;
 //! - driving towards a pedestrian ends in a STOP.
 //!
-//! The figures themselves (over many seeds) are in README "Figures"; these are guards.
+//! The figures themselves (over many seeds) are in docs/perception.md; these are guards.
 
 mod util;
 
@@ -74,7 +74,7 @@ fn a_pedestrian_stepping_in_is_a_stop_within_a_few_generations() {
 fn driving_an_empty_road_is_never_a_stop() {
     // 320x240 keeps each replay at a few seconds (every frame of a moving vehicle is a full
     // render). Measured: max 0.35-0.75 after the first 60 generations (seeds 1-3): the
-    // horizon-line false matches README describes.
+    // horizon-line false matches docs/perception.md describes.
     for seed in [1, 2] {
         let (_, w) = replay("driving", (320, 240), seed);
         let max = w[60..].iter().cloned().fold(0.0, f64::max);

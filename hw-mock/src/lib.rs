@@ -3,7 +3,8 @@
 //!
 //! # Contract
 //! - **Frames and units.** The world is given in the vehicle frame, metres: x to the right, y up
-//!   from the road surface (the road is the plane y = 0), z forward. The vehicle is stationary.
+//!   from the road surface (the road is the plane y = 0), z forward. The vehicle stands still,
+//!   except in the `driving*` scenarios ([`Scenario`]), where road and roadside come towards it.
 //!   Images are RGB8, interleaved, row-major, `width * height * 3` bytes, pixel (u, v) with u to
 //!   the right and v down. Depth ground truth is per pixel, `f32`: the vehicle-frame **z** of the
 //!   surface point the pixel centre sees, `f32::INFINITY` for sky, NaN where the camera model

@@ -9,7 +9,7 @@
 //! - A border of [`PAD`] pixels on every side, replicated from the edge, so a neighbourhood window
 //!   (and the kernel's 16/32-byte loads) never leaves the buffer: the kernel has no bounds logic.
 //!
-//! Preparation never allocates once the image exists ([`PreparedImage::prepare_rgb`] refills in
+//! Preparation never allocates once the image exists ([`PreparedImage::prepare`] refills in
 //! place); a frame of the wrong size is an error, not a panic.
 
 use crate::isa::{Isa, dispatch};

@@ -10,38 +10,43 @@
 //!   when a new pair arrives every fly, survivors included, is re-evaluated (a stored fitness goes
 //!   stale on video); otherwise only the offspring are.
 //!
-//! # One generation ([`Engine::step`])
-//! 1. **Selection** (elitist, deterministic): the best `survival_rate` of the flies by shared
-//!    fitness are kept, found in O(N) with a selection (not a sort). On the first generation of
-//!    a new frame, the flies whose left projection lies where the image changed are
-//!    re-evaluated first: their stale fitness is the one that no longer holds (a fly that a new
-//!    obstacle hides).
-//! 2. **Operators** fill the rest: barycentric crossover `OF = l OF1 + (1-l) OF2` of two survivors
-//!    (l ~ U[0,1]; the first parent, with probability `guided_breeding`, the fittest before
-//!    sharing of `breeding_tournament` survivors drawn in blocks where the left image changed
-//!    ([`change`]) when there are some, one drawn from all survivors otherwise; the second from
-//!    the first one's sharing cell with probability `local_mating`, from all survivors
-//!    otherwise), then Gaussian mutation of each coordinate
-//!    with probability `mutation_rate`, sigma = `mutation_sigma * max(z, 1 m)`; the last
-//!    `immigration_rate` of the population are immigrants drawn like the initial flies, except
-//!    that `guided_immigration` of them go where the left image changed since the previous
-//!    frame ([`change`]): each takes the strongest gradient of a few points of a changed block
-//!    and keeps the fittest of `immigrant_probes` depths along that ray (one per stratum of
-//!    inverse depth), then of two refinement stages of 8 around the fittest so far (over one
-//!    stratum, then over a quarter of that), evaluated on the current frame.
-//! 3. **Evaluation** ([`fitness`]): `F = g_L g_R / (SSD + floor)` at the two projections.
-//! 4. **Road region of interest** (paper 5.1): outside it, F is multiplied by `roi.penalty`.
-//! 5. **Sharing** ([`sharing`]): F is divided by `n^sharing_exponent`, n being the number of flies
-//!    whose left projection falls in the same `sharing_cell_px` square: O(N) with a grid.
-//! 6. **Warnings**: `w = F / (max(|x|, 0.5)^2 * max(z, 1))` for every fly, F being the fly's
+//! # One generation ([`Engine::step`]), room by room
+//! 1. **Refresh** (`refresh`): on the first generation of a new frame, the flies whose left
+//!    projection lies where the image changed (`change`: 16x16 blocks whose mean luma moved
+//!    beyond the noise) are re-evaluated first: their stale fitness is the one that no longer
+//!    holds (a fly that a new obstacle hides).
+//! 2. **Selection** (`select`, elitist, deterministic): the best `survival_rate` of the flies
+//!    by shared fitness are kept, found in O(N) with a radix selection (not a sort), and
+//!    compacted to the front.
+//! 3. **Breeding** (`breeding`): barycentric crossover `OF = l OF1 + (1-l) OF2` of two
+//!    survivors, l uniform in \[0, 1); the first parent, with probability `guided_breeding`,
+//!    the fittest before sharing of `breeding_tournament` survivors drawn where the left image
+//!    changed (when there are some), else one drawn from all survivors; the second from the
+//!    first one's sharing cell with probability `local_mating`, else from all survivors.
+//! 4. **Mutation** (`mutation`): each coordinate with probability `mutation_rate`, by a normal
+//!    of sigma `mutation_sigma * max(z, 1 m)`.
+//! 5. **Immigration** (`immigration`): the last `immigration_rate` of the population are drawn
+//!    like the initial flies (`sampler`), except that `guided_immigration` of them go where
+//!    the left image changed: each takes the strongest gradient of a few points of a changed
+//!    block and keeps the fittest of `immigrant_probes` depths along that ray (one per stratum
+//!    of inverse depth), then of two refinement stages of 8 around the fittest so far.
+//! 6. **Evaluation** (`fitness`, `windows`): `F = g_L g_R / (SSD + floor)` at the two
+//!    projections, multiplied by `roi.penalty` outside the road region of interest (paper 5.1).
+//! 7. **Sharing** (`sharing`): F is divided by `n^sharing_exponent`, n being the number of
+//!    flies whose left projection falls in the same `sharing_cell_px` square: O(N) with a grid.
+//! 8. **Warnings**: `w = F / (max(|x|, 0.5)^2 * max(z, 1))` for every fly, F being the fly's
 //!    fitness after the region of interest and *before* sharing. Sharing is a device of
 //!    selection (diversity); dividing the evidence of an obstacle by the number of flies that
 //!    found it made a pedestrian at 4 m only ~5x as alarming as an empty road in hw-mock,
-//!    against >20x without. The paper's global warning is the mean warning. Its scale depends
-//!    on image contrast, camera gain and window size, so the engine also reports the *danger*
-//!    `sum(w) / sum(F)`: the fitness-weighted mean of `1 / (max(|x|,.5)^2 max(z,1))`, in m^-3,
-//!    which does not. Thresholds written in danger carry over between scenes and cameras
-//!    (4 = all evidence at 1 m dead ahead, 1 = at 4 m, 0.06 = at 4 m but 2 m to the side).
+//!    against >20x without. The paper's global warning is the mean warning; the engine also
+//!    reports the *danger* `sum(w) / sum(F)`, the fitness-weighted mean of
+//!    `1 / (max(|x|,.5)^2 max(z,1))` in m^-3: where the evidence is, not how much there is (on
+//!    an empty road a few weak matches near the vehicle give it a high value). The daemon logs
+//!    it and decides on neither of them alone (see `flyd::daemon::control`).
+//!
+//! Each room owns its buffers; only the population, the random generator and the
+//! evaluation's scratch go from one phase to the next. The hot loops run on the instruction
+//! set the engine detected ([`crate::isa`]; every set gives the same bits).
 //!
 //! Initial and immigrant flies are drawn uniformly over the left image and uniformly in inverse
 //! depth within `[min_depth, max_depth]` (uniform in disparity, the quantity stereo resolves

@@ -1,4 +1,4 @@
-//! Tunable parameters of the evolution, with the defaults chosen by measurement (see README).
+//! Tunable parameters of the evolution, with the defaults chosen by measurement (see docs/tuning.md).
 
 use serde::{Deserialize, Serialize};
 
@@ -60,7 +60,7 @@ pub struct EngineParams {
     /// Fraction of crossovers whose second parent is drawn from the first parent's sharing
     /// cell (mating restriction) rather than from all survivors. 0 is the paper's operator; 1
     /// (default) lets a fly found on a new obstacle breed there, which is what makes the
-    /// population react in ~10 generations instead of ~150 (see README).
+    /// population react in ~10 generations instead of ~150 (see docs/tuning.md).
     pub local_mating: f64,
     /// Fraction of offspring whose first parent is drawn from the survivors in blocks where the
     /// left image changed (see `guided_immigration`), when some survivor is in one; the others
