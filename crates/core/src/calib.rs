@@ -11,11 +11,18 @@
 //!   `K1`, `D1`, `K2`, `D2`, `R`, `T` as `!!opencv-matrix` with `p_right_cam = R * p_left_cam + T`,
 //!   T in the unit declared in [`OpenCvImport`]. The file says nothing about where the rig is on the
 //!   vehicle: [`OpenCvImport`] places the left camera.
+//! - **KITTI** ([`parse_kitti`]): the raw dataset's `calib_cam_to_cam.txt` (rectified
+//!   `P_rect_0N`, or `K/D/R/T_0N` for unrectified images) and the odometry benchmark's
+//!   `calib.txt` (`P0`..`P3`), placed at KITTI's mount (camera 0 on the centre line, 1.65 m up,
+//!   level); the scene has a road.
 //! - **flyd rig TOML** ([`parse_rig_toml`]), the project's own format: either two explicit cameras
-//!   (`[left]`, `[right]`) or an `[opencv]` import placed by `[mount]`, plus an optional `[search]`
-//!   depth range and road flag. Unknown keys are errors.
+//!   (`[left]`, `[right]`) or an import of any of the formats above (`[import]`, or the older
+//!   `[opencv]`) placed on the vehicle by `[mount]`, plus an optional `[search]` depth range and
+//!   road flag. Unknown keys are errors.
 //!
-//! [`load`] picks the format from the extension and content.
+//! [`load`] picks the format from the extension and content; [`load_sized`] also gives the
+//! image size to a file that records none (a KITTI odometry file) and checks it against one
+//! that does.
 //!
 //! # Conventions and units
 //! Frames are those of [`crate::geometry`]: vehicle frame x right, y up from the road, z forward;
@@ -36,12 +43,14 @@ use nalgebra::Point3;
 
 use crate::geometry::{Camera, CameraError, StereoRig};
 
+mod kitti;
 mod middlebury;
 mod opencv;
 mod rig;
 #[cfg(test)]
 mod tests;
 
+pub use kitti::{KITTI_CAMERA_HEIGHT, KittiImport, parse_kitti};
 pub use middlebury::parse_middlebury;
 pub use opencv::{OpenCvImport, Unit, parse_opencv_yaml};
 pub use rig::parse_rig_toml;
@@ -70,8 +79,8 @@ pub enum CalibError {
     },
     #[error(
         "calibration file {}: unrecognised format (expected a flyd rig '.toml', an OpenCV \
-         FileStorage YAML with a '%YAML' header or '.yml'/'.yaml' extension, or a Middlebury \
-         calib.txt with 'cam0=')",
+         FileStorage YAML with a '%YAML' header or '.yml'/'.yaml' extension, a Middlebury \
+         calib.txt with 'cam0=', or a KITTI calib_cam_to_cam.txt or odometry calib.txt)",
         file.display()
     )]
     UnknownFormat { file: PathBuf },
@@ -132,32 +141,94 @@ fn field_error(file: &Path, field: impl Into<String>, message: impl Into<String>
 
 /// Loads a calibration, detecting its format: a `.toml` extension means a flyd rig, a `%YAML`
 /// header or a `.yml`/`.yaml` extension an OpenCV file (imported with
-/// [`OpenCvImport::default`]), and a `cam0=` line a Middlebury `calib.txt`.
+/// [`OpenCvImport::default`]), a `cam0=` line a Middlebury `calib.txt`, and `P_rect_0N:`,
+/// `K_0N:` or `P0:`/`P1:` lines a KITTI file ([`KittiImport::default`]).
 pub fn load(path: &Path) -> Result<Calibration, CalibError> {
+    load_file(path, None)
+}
+
+/// [`load`] for images of `size`: the size of a file that records none (a KITTI odometry
+/// file), checked against the cameras of one that does.
+pub fn load_sized(path: &Path, size: (u32, u32)) -> Result<Calibration, CalibError> {
+    let cal = load_file(path, Some(size))?;
+    for (side, cam) in [("left", &cal.rig.left), ("right", &cal.rig.right)] {
+        if (cam.width(), cam.height()) != size {
+            return Err(field_error(
+                path,
+                "image size",
+                format!(
+                    "the {side} camera is {}x{}, the images are {}x{}",
+                    cam.width(),
+                    cam.height(),
+                    size.0,
+                    size.1
+                ),
+            ));
+        }
+    }
+    Ok(cal)
+}
+
+fn load_file(path: &Path, size: Option<(u32, u32)>) -> Result<Calibration, CalibError> {
     let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
         file: path.to_path_buf(),
         error,
     })?;
     // Editors on Windows like to prepend a byte-order mark; it means nothing to any of the formats.
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    if ext.as_deref() == Some("toml") {
-        parse_rig_toml(text, path)
-    } else if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
-        parse_opencv_yaml(text, path, &OpenCvImport::default())
-    } else if text.lines().any(|line| {
-        line.trim_start()
-            .strip_prefix("cam0")
-            .is_some_and(|rest| rest.trim_start().starts_with('='))
-    }) {
-        parse_middlebury(text, path)
-    } else {
-        Err(CalibError::UnknownFormat {
+    match Format::of(path, text) {
+        Some(Format::Rig) => parse_rig_toml(text, path),
+        Some(Format::OpenCv) => {
+            let opts = OpenCvImport {
+                image_size: size,
+                ..OpenCvImport::default()
+            };
+            parse_opencv_yaml(text, path, &opts)
+        }
+        Some(Format::Middlebury) => parse_middlebury(text, path),
+        Some(Format::Kitti) => {
+            let opts = KittiImport {
+                image_size: size,
+                ..KittiImport::default()
+            };
+            parse_kitti(text, path, &opts)
+        }
+        None => Err(CalibError::UnknownFormat {
             file: path.to_path_buf(),
-        })
+        }),
+    }
+}
+
+/// The calibration formats [`load`] tells apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Rig,
+    OpenCv,
+    Middlebury,
+    Kitti,
+}
+
+impl Format {
+    fn of(path: &Path, text: &str) -> Option<Self> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if ext.as_deref() == Some("toml") {
+            Some(Self::Rig)
+        } else if text.starts_with("%YAML") || matches!(ext.as_deref(), Some("yml" | "yaml")) {
+            Some(Self::OpenCv)
+        } else if text.lines().any(|line| {
+            line.trim_start()
+                .strip_prefix("cam0")
+                .is_some_and(|rest| rest.trim_start().starts_with('='))
+        }) {
+            Some(Self::Middlebury)
+        } else if kitti::looks_like_kitti(text) {
+            Some(Self::Kitti)
+        } else {
+            None
+        }
     }
 }
 

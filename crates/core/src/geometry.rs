@@ -334,11 +334,89 @@ impl StereoRig {
     pub fn baseline(&self) -> f64 {
         (self.right.centre - self.left.centre).norm()
     }
+
+    /// The same rig moved as one rigid body so that the left camera's optical centre is at
+    /// `left_centre` (vehicle frame) with orientation `left_rotation` (forward-looking frame ->
+    /// camera frame): how an imported calibration, which knows only where the right camera is
+    /// relative to the left one, is placed on the vehicle.
+    pub fn placed(
+        &self,
+        left_centre: Point3<f64>,
+        left_rotation: Matrix3<f64>,
+    ) -> Result<StereoRig, CameraError> {
+        let (l, r) = (&self.left, &self.right);
+        // p_right = R_rel p_left + t_rel (camera frames), the rig's invariant.
+        let r_rel = r.rotation * l.rotation.inverse();
+        let t_rel = r.rotation * flip_y(l.centre - r.centre);
+        let left = Camera::new(
+            l.width,
+            l.height,
+            l.intrinsics,
+            l.distortion,
+            left_rotation,
+            left_centre,
+        )?;
+        let right_rotation = r_rel * left.rotation;
+        let right_centre = left_centre - flip_y(right_rotation.inverse() * t_rel);
+        let right = Camera::new(
+            r.width,
+            r.height,
+            r.intrinsics,
+            r.distortion,
+            *right_rotation.matrix(),
+            right_centre,
+        )?;
+        Ok(StereoRig { left, right })
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_placed_rig_keeps_its_relative_pose() {
+        let k = Intrinsics {
+            fx: 700.0,
+            fy: 700.0,
+            cx: 320.0,
+            cy: 240.0,
+        };
+        let cam = |x: f64, yaw: f64| {
+            let rotation = rotation_from_angles(1.0, yaw, 0.5);
+            Camera::new(
+                640,
+                480,
+                k,
+                Distortion::default(),
+                rotation,
+                Point3::new(x, 0.0, 0.0),
+            )
+        };
+        let rig = StereoRig {
+            left: cam(0.0, 0.0).expect("camera"),
+            right: cam(0.5, 1.5).expect("camera"),
+        };
+        let placed = rig
+            .placed(
+                Point3::new(-0.06, 1.65, 0.2),
+                rotation_from_angles(3.0, 0.0, -1.0),
+            )
+            .expect("placed");
+        assert_eq!(placed.left.centre(), Point3::new(-0.06, 1.65, 0.2));
+        assert!((placed.baseline() - 0.5).abs() < 1e-12);
+        // A point in the left camera's frame lands on the same right pixel in both rigs.
+        for p in [Point3::new(0.3, -0.2, 5.0), Point3::new(-2.0, 1.0, 17.0)] {
+            let (a, b) = (
+                rig.right
+                    .camera_from_vehicle(&rig.left.vehicle_from_camera(&p)),
+                placed
+                    .right
+                    .camera_from_vehicle(&placed.left.vehicle_from_camera(&p)),
+            );
+            assert!((a - b).norm() < 1e-9, "{a} vs {b}");
+        }
+    }
 
     fn camera(dist: Distortion, pitch: f64) -> Camera {
         Camera::new(

@@ -32,7 +32,25 @@
 //! pitch_deg = 5.0
 //! ```
 //!
-//! and in both cases an optional search section:
+//! or any other calibration file flyd reads (OpenCV YAML, Middlebury `calib.txt`, KITTI
+//! `calib_cam_to_cam.txt` or odometry `calib.txt`), placed on the vehicle:
+//!
+//! ```toml
+//! [import]
+//! file = "calib_cam_to_cam.txt"  # relative to this TOML; the format is detected
+//! width = 1242                # when the file records no size (KITTI odometry)
+//! height = 375
+//! cameras = [2, 3]            # KITTI: which cameras (default the colour pair)
+//! rectified = true            # KITTI: P_rect (default) or the raw K/D/R/T
+//! translation_unit = "mm"     # OpenCV: unit of T
+//! [mount]                     # where the left camera is (default: where the format puts it;
+//! position = [-0.06, 1.65, 0.0]   # a Middlebury file needs one)
+//! pitch_deg = 0.0
+//! roll_deg = 0.0
+//! ```
+//!
+//! and in all cases an optional search section (an import's own depth range, a Middlebury
+//! file's disparity range, is not used: it describes that dataset, not the road):
 //!
 //! ```toml
 //! [search]
@@ -47,8 +65,8 @@ use nalgebra::{Matrix3, Point3};
 use serde::Deserialize;
 
 use super::{
-    CalibError, Calibration, OpenCvImport, Part, RigFields, Side, Unit, build_camera,
-    check_depth_range, check_rig, field_error, opencv,
+    CalibError, Calibration, KittiImport, OpenCvImport, Part, RigFields, Side, Unit, build_camera,
+    check_depth_range, check_rig, field_error, kitti, opencv,
 };
 use crate::geometry::{Camera, Distortion, Intrinsics, StereoRig, rotation_from_angles};
 
@@ -58,8 +76,20 @@ struct RigFile {
     left: Option<CameraToml>,
     right: Option<CameraToml>,
     opencv: Option<OpenCvToml>,
+    import: Option<ImportToml>,
     mount: Option<MountToml>,
     search: Option<SearchToml>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ImportToml {
+    file: PathBuf,
+    width: Option<u32>,
+    height: Option<u32>,
+    cameras: Option<[u8; 2]>,
+    rectified: Option<bool>,
+    translation_unit: Option<Unit>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -136,6 +166,21 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
     let depth_range = paired(origin, (search.min_depth, min), (search.max_depth, max))?;
     if let Some(range) = depth_range {
         check_depth_range(origin, range, min, max)?;
+    }
+    if let Some(import) = &file.import {
+        if file.left.is_some() || file.right.is_some() || file.opencv.is_some() {
+            return Err(field_error(
+                origin,
+                "import",
+                "give one of [left] and [right], [opencv] or [import]",
+            ));
+        }
+        let rig = import_any(origin, import, file.mount, depth_range)?;
+        return Ok(Calibration {
+            rig,
+            depth_range,
+            has_road: search.road.unwrap_or(true),
+        });
     }
     let rig = match (file.left, file.right, file.opencv) {
         (Some(_), _, Some(_)) | (_, Some(_), Some(_)) => {
@@ -299,6 +344,146 @@ fn finite_angles(
         *slot = value;
     }
     Ok(out)
+}
+
+/// An `[import]`: the file read as its format says, then placed by `mount` if given.
+fn import_any(
+    file: &Path,
+    import: &ImportToml,
+    mount: Option<MountToml>,
+    depth_range: Option<(f64, f64)>,
+) -> Result<StereoRig, CalibError> {
+    let size = paired(
+        file,
+        (import.width, "import.width"),
+        (import.height, "import.height"),
+    )?;
+    let path = file
+        .parent()
+        .unwrap_or_else(|| Path::new(""))
+        .join(&import.file);
+    let as_import = |error: CalibError| CalibError::Import {
+        file: file.to_path_buf(),
+        field: "import.file".to_string(),
+        error: Box::new(error),
+    };
+    let text = std::fs::read_to_string(&path).map_err(|error| {
+        as_import(CalibError::Io {
+            file: path.clone(),
+            error,
+        })
+    })?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let format = super::Format::of(&path, text);
+    let only = |key: &str, given: bool, wanted: super::Format| {
+        if given && format != Some(wanted) {
+            Err(field_error(file, key, "only for that format's files"))
+        } else {
+            Ok(())
+        }
+    };
+    only(
+        "import.cameras",
+        import.cameras.is_some(),
+        super::Format::Kitti,
+    )?;
+    only(
+        "import.rectified",
+        import.rectified.is_some(),
+        super::Format::Kitti,
+    )?;
+    let unit = import.translation_unit.is_some();
+    only("import.translation_unit", unit, super::Format::OpenCv)?;
+    let imported = match format {
+        Some(super::Format::Kitti) => {
+            let defaults = KittiImport::default();
+            let opts = KittiImport {
+                cameras: import.cameras.map_or(defaults.cameras, |[l, r]| (l, r)),
+                rectified: import.rectified.unwrap_or(defaults.rectified),
+                image_size: size,
+            };
+            kitti::parse_kitti(text, &path, &opts)
+        }
+        Some(super::Format::OpenCv) => {
+            let opts = OpenCvImport {
+                translation_unit: import.translation_unit.unwrap_or_default(),
+                image_size: size,
+                ..OpenCvImport::default()
+            };
+            super::parse_opencv_yaml(text, &path, &opts)
+        }
+        Some(super::Format::Middlebury) => {
+            if mount.as_ref().is_none_or(|m| m.position.is_none()) {
+                return Err(field_error(
+                    file,
+                    "mount.position",
+                    "missing: a Middlebury calib.txt does not say where the cameras are",
+                ));
+            }
+            super::parse_middlebury(text, &path)
+        }
+        Some(super::Format::Rig) => {
+            return Err(field_error(
+                file,
+                "import.file",
+                "a rig TOML cannot import another",
+            ));
+        }
+        None => Err(CalibError::UnknownFormat { file: path.clone() }),
+    }
+    .map_err(as_import)?;
+    let Some(mount) = mount else {
+        return Ok(imported.rig);
+    };
+    let (centre, rotation) = mount_pose(file, &mount, imported.rig.left.centre())?;
+    let rig = imported
+        .rig
+        .placed(centre, rotation)
+        .map_err(|error| CalibError::Camera {
+            file: file.to_path_buf(),
+            field: "mount".to_string(),
+            error,
+        })?;
+    check_rig(
+        file,
+        &rig,
+        depth_range,
+        RigFields {
+            baseline: "import.file",
+            overlap: "mount",
+        },
+    )?;
+    Ok(rig)
+}
+
+/// The left camera's pose a `[mount]` gives: its position (`default` if none) and orientation.
+fn mount_pose(
+    file: &Path,
+    mount: &MountToml,
+    default: Point3<f64>,
+) -> Result<(Point3<f64>, Matrix3<f64>), CalibError> {
+    let centre = match mount.position {
+        Some(p) if p.iter().any(|v| !v.is_finite()) => {
+            return Err(field_error(
+                file,
+                "mount.position",
+                format!("must be finite numbers of metres (got {p:?})"),
+            ));
+        }
+        Some(p) => Point3::from(p),
+        None => default,
+    };
+    let mount_key = |name: &str| format!("mount.{name}");
+    let [pitch, yaw, roll] = finite_angles(
+        file,
+        &mount_key,
+        [
+            ("pitch_deg", mount.pitch_deg),
+            ("yaw_deg", mount.yaw_deg),
+            ("roll_deg", mount.roll_deg),
+        ],
+    )?;
+    Ok((centre, rotation_from_angles(pitch, yaw, roll)))
 }
 
 fn imported_rig(

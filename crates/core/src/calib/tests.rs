@@ -3,6 +3,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Point3};
 
 use super::*;
+use crate::chain::chain;
 use crate::geometry::{Distortion, Intrinsics};
 use crate::test_support::damage_each;
 
@@ -633,5 +634,199 @@ fn damaged_calibration_files_are_errors_or_usable_never_a_panic() {
     assert!(
         loaded > 200 && refused > 2000,
         "{loaded} loaded, {refused} refused"
+    );
+}
+
+/// KITTI's raw `calib_cam_to_cam.txt` layout (2011-09-26 values for cameras 0, 2 and 3; the
+/// unrectified parts rounded).
+const KITTI_CAM_TO_CAM: &str = "\
+calib_time: 09-Jan-2012 13:57:47
+corner_dist: 9.950000e-02
+S_00: 1.392000e+03 5.120000e+02
+S_rect_00: 1.242000e+03 3.750000e+02
+P_rect_00: 7.215377e+02 0.000000e+00 6.095593e+02 0.000000e+00 0.000000e+00 7.215377e+02 1.728540e+02 0.000000e+00 0.000000e+00 0.000000e+00 1.000000e+00 0.000000e+00
+S_02: 1.392000e+03 5.120000e+02
+K_02: 9.597910e+02 0.000000e+00 6.960217e+02 0.000000e+00 9.569251e+02 2.241806e+02 0.000000e+00 0.000000e+00 1.000000e+00
+D_02: -3.691481e-01 1.968681e-01 1.353473e-03 5.677587e-04 -6.770705e-02
+R_02: 9.999758e-01 -5.267463e-03 -4.552439e-03 5.251945e-03 9.999804e-01 -3.413835e-03 4.570332e-03 3.389843e-03 9.999838e-01
+T_02: 5.956621e-02 2.900141e-04 2.577209e-03
+S_rect_02: 1.242000e+03 3.750000e+02
+P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 7.215377e+02 1.728540e+02 2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 2.745884e-03
+S_03: 1.392000e+03 5.120000e+02
+K_03: 9.037596e+02 0.000000e+00 6.957519e+02 0.000000e+00 9.019653e+02 2.242509e+02 0.000000e+00 0.000000e+00 1.000000e+00
+D_03: -3.639558e-01 1.788651e-01 6.029694e-04 -3.922424e-04 -5.382460e-02
+R_03: 9.995599e-01 1.699522e-02 -2.431313e-02 -1.704422e-02 9.998531e-01 -1.809756e-03 2.427880e-02 2.223358e-03 9.997028e-01
+T_03: -4.731050e-01 5.551470e-03 -5.250882e-03
+S_rect_03: 1.242000e+03 3.750000e+02
+P_rect_03: 7.215377e+02 0.000000e+00 6.095593e+02 -3.395242e+02 0.000000e+00 7.215377e+02 1.728540e+02 2.199936e+00 0.000000e+00 0.000000e+00 1.000000e+00 2.729905e-03
+";
+
+#[test]
+fn kitti_cam_to_cam_rectified_pair_at_kittis_mount() {
+    let cal = parse_kitti(
+        KITTI_CAM_TO_CAM,
+        Path::new("c2c.txt"),
+        &KittiImport::default(),
+    )
+    .expect("valid");
+    let (left, right) = (&cal.rig.left, &cal.rig.right);
+    assert_eq!((left.width(), left.height()), (1242, 375));
+    assert_eq!(left.intrinsics().fx, 721.5377);
+    assert!(left.distortion().is_zero());
+    // P = K [I | t], t = K^-1 P[:, 3]: camera 2 is 6 cm left of camera 0, camera 3 47 cm right.
+    let tx = |p03: f64, tz: f64| (p03 - 609.5593 * tz) / 721.5377;
+    assert_close(left.centre().x, -tx(44.85728, 2.745884e-3), 1e-12, "left x");
+    assert_close(
+        right.centre().x,
+        -tx(-339.5242, 2.729905e-3),
+        1e-12,
+        "right x",
+    );
+    assert_close(left.centre().y, KITTI_CAMERA_HEIGHT, 1e-3, "left height");
+    assert_close(cal.rig.baseline(), 0.5327, 1e-3, "baseline");
+    assert!(cal.has_road);
+    // A road point 10 m ahead projects below the principal point, as a level rig 1.65 m up sees.
+    let px = left
+        .pixel_from_vehicle(&Point3::new(0.0, 0.0, 10.0))
+        .expect("visible");
+    assert_close(px.y, 172.854 + 721.5377 * 1.65 / 10.0, 0.5, "road row");
+}
+
+#[test]
+fn kitti_unrectified_cameras_keep_their_distortion_and_rotation() {
+    let opts = KittiImport {
+        rectified: false,
+        ..KittiImport::default()
+    };
+    let cal = parse_kitti(KITTI_CAM_TO_CAM, Path::new("c2c.txt"), &opts).expect("valid");
+    let (left, right) = (&cal.rig.left, &cal.rig.right);
+    assert_eq!((left.width(), left.height()), (1392, 512));
+    assert_eq!(left.distortion().k1, -3.691481e-01);
+    assert_eq!(right.intrinsics().fx, 9.037596e+02);
+    assert_close(cal.rig.baseline(), 0.5327, 2e-3, "baseline from T_02, T_03");
+    assert!(right.rotation().angle() > 0.01, "R_03 is not the identity");
+}
+
+#[test]
+fn kitti_odometry_file_needs_and_takes_the_image_size() {
+    let text = "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n\
+                P1: 7.188560e+02 0 6.071928e+02 -3.861448e+02 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n\
+                P2: 7.188560e+02 0 6.071928e+02 4.538225e+01 0 7.188560e+02 1.852157e+02 -1.130887e-01 0 0 1 3.779761e-03\n\
+                P3: 7.188560e+02 0 6.071928e+02 -3.372877e+02 0 7.188560e+02 1.852157e+02 2.369057e+00 0 0 1 4.915215e-03\n\
+                Tr: 4.276802e-04 -9.999672e-01 -8.084491e-03 -1.198459e-02 -7.210626e-03 8.081198e-03 -9.999413e-01 -5.403984e-02 9.999738e-01 4.859485e-04 -7.206933e-03 -2.921968e-01\n";
+    let origin = Path::new("calib.txt");
+    let err = parse_kitti(text, origin, &KittiImport::default()).unwrap_err();
+    assert_eq!(err.field(), Some("image size"), "{err}");
+    let opts = KittiImport {
+        image_size: Some((1241, 376)),
+        ..KittiImport::default()
+    };
+    let cal = parse_kitti(text, origin, &opts).expect("valid");
+    assert_close(cal.rig.baseline(), 0.53233, 1e-3, "colour baseline");
+    let grey = KittiImport {
+        cameras: (0, 1),
+        ..opts
+    };
+    let cal = parse_kitti(text, origin, &grey).expect("valid");
+    assert_close(
+        cal.rig.baseline(),
+        386.1448 / 718.856,
+        1e-9,
+        "grey baseline",
+    );
+    assert_eq!(
+        cal.rig.left.centre(),
+        Point3::new(0.0, KITTI_CAMERA_HEIGHT, 0.0)
+    );
+}
+
+#[test]
+fn kitti_files_with_missing_or_broken_matrices_name_the_key() {
+    let origin = Path::new("c2c.txt");
+    let without = |key: &str| {
+        KITTI_CAM_TO_CAM
+            .lines()
+            .filter(|l| !l.starts_with(key))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let err = parse_kitti(&without("P_rect_03"), origin, &KittiImport::default()).unwrap_err();
+    assert_eq!(err.field(), Some("P_rect_03"), "{err}");
+    let broken = KITTI_CAM_TO_CAM.replace("P_rect_02: 7.215377e+02", "P_rect_02: x");
+    let err = parse_kitti(&broken, origin, &KittiImport::default()).unwrap_err();
+    assert_eq!(err.field(), Some("P_rect_02"), "{err}");
+    let bad = KittiImport {
+        cameras: (2, 2),
+        ..KittiImport::default()
+    };
+    assert_eq!(
+        parse_kitti(KITTI_CAM_TO_CAM, origin, &bad)
+            .unwrap_err()
+            .field(),
+        Some("cameras")
+    );
+    let sized = KittiImport {
+        image_size: Some((640, 480)),
+        ..KittiImport::default()
+    };
+    let err = parse_kitti(KITTI_CAM_TO_CAM, origin, &sized).unwrap_err();
+    assert!(chain(&err).contains("1242x375"), "{err}");
+}
+
+#[test]
+fn kitti_fixtures_load_placed_on_the_vehicle() {
+    // KITTI's P matrices through a rig TOML's [import] (the file records no size).
+    let seq = load_sized("kitti/kitti_raw_2011_09_26_seq12/rig.toml", (1242, 375));
+    assert_close(seq.rig.baseline(), 0.5327, 1e-3, "baseline");
+    assert_close(seq.rig.left.centre().y, KITTI_CAMERA_HEIGHT, 1e-3, "height");
+    assert!(seq.has_road);
+    // A pair's Middlebury calib.txt placed by [mount].
+    let pair = load_sized("kitti/kitti2015_train_000000/rig.toml", (1242, 375));
+    assert_eq!(pair.rig.left.centre(), Point3::new(-0.06, 1.65, 0.0));
+    assert_close(pair.rig.right.centre().x, -0.06 + 0.532725, 1e-9, "right x");
+    assert!(pair.has_road && pair.depth_range.is_none());
+    // Detected when loaded directly, sized by the caller.
+    let direct = super::load_sized(
+        &fixture("kitti/kitti_raw_2011_09_26_seq12/calib_kitti_P_rect.txt"),
+        (1242, 375),
+    )
+    .expect("loads");
+    assert_eq!(direct.rig, seq.rig);
+}
+
+#[test]
+fn an_import_checks_what_it_is_given() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let write = |name: &str, text: &str| std::fs::write(dir.path().join(name), text).unwrap();
+    write("c2c.txt", KITTI_CAM_TO_CAM);
+    let check = |toml: &str, field: &str| {
+        write("rig.toml", toml);
+        let err = super::load(&dir.path().join("rig.toml")).unwrap_err();
+        assert_eq!(err.field(), Some(field), "{}", chain(&err));
+    };
+    check(
+        "[import]\nfile = \"c2c.txt\"\ntranslation_unit = \"mm\"\n",
+        "import.translation_unit",
+    );
+    check("[import]\nfile = \"missing.txt\"\n", "import.file");
+    check(
+        "[import]\nfile = \"c2c.txt\"\nwidth = 1242\n",
+        "import.height",
+    );
+    let middlebury = std::fs::read_to_string(fixture("middlebury-motorcycle/calib.txt")).unwrap();
+    write("calib.txt", &middlebury);
+    check("[import]\nfile = \"calib.txt\"\n", "mount.position");
+    write(
+        "rig.toml",
+        "[import]\nfile = \"c2c.txt\"\n[mount]\npitch_deg = 2.0\n",
+    );
+    let tilted = super::load(&dir.path().join("rig.toml")).expect("loads");
+    let level = parse_kitti(KITTI_CAM_TO_CAM, Path::new("c"), &KittiImport::default()).unwrap();
+    assert_eq!(tilted.rig.left.centre(), level.rig.left.centre());
+    assert_close(
+        tilted.rig.baseline(),
+        level.rig.baseline(),
+        1e-12,
+        "baseline",
     );
 }
