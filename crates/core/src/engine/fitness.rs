@@ -32,6 +32,7 @@ use super::sharing::Grid;
 use super::windows::{Windows, mask, mask_bits, mask16};
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
 use crate::isa::{Isa, dispatch};
+use crate::road::RoadPlane;
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the
@@ -60,14 +61,16 @@ pub(crate) struct Kernel<'a> {
     /// Rows of the neighbourhood compared: every `row_step`-th, from the top one.
     row_step: usize,
     roi: Option<RoadRoi>,
+    /// The road the region of interest's heights are measured from (`RoadPlane::coefficients`).
+    road: [f32; 3],
     channels: usize,
     /// SSD (summed over the compared samples) under which a fly's windows match.
     match_ssd: f32,
 }
 
 impl<'a> Kernel<'a> {
-    /// The kernel for `frame`.
-    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams) -> Self {
+    /// The kernel for `frame`, heights measured from `road`.
+    pub(crate) fn new(frame: &'a StereoFrame, params: &EngineParams, road: &RoadPlane) -> Self {
         let radius = params.neighbourhood_radius as usize;
         // Channels present in *both* images (a grey camera paired with a colour one compares grey).
         let channels = frame.left.channels().min(frame.right.channels()) as usize;
@@ -81,6 +84,7 @@ impl<'a> Kernel<'a> {
             scale: FITNESS_SCALE * samples as f32,
             row_step,
             roi: params.roi,
+            road: road.coefficients(),
             channels,
             match_ssd: (MATCH_SSD_PER_SAMPLE * samples as f64) as f32,
         }
@@ -170,7 +174,12 @@ impl<'a> Kernel<'a> {
         let (from, len) = (range.start, range.len().min(scratch.len()));
         let (ul, vl) = (&pop.u_left[from..][..len], &pop.v_left[from..][..len]);
         let (ur, vr) = (&pop.u_right[from..][..len], &pop.v_right[from..][..len]);
-        let (ys, zs) = (&pop.y[from..][..len], &pop.z[from..][..len]);
+        let (xs, ys, zs) = (
+            &pop.x[from..][..len],
+            &pop.y[from..][..len],
+            &pop.z[from..][..len],
+        );
+        let [r0, rz, rx] = self.road;
         let fitness = &mut pop.raw_fitness[from..][..len];
         let cells = &mut pop.cell[from..][..len];
         let (lo, ro) = (&mut scratch.lo[..len], &mut scratch.ro[..len]);
@@ -230,7 +239,8 @@ impl<'a> Kernel<'a> {
             m.matched += u32::from(compared & (ssd <= self.match_ssd));
             // FITNESS_SCALE gl gr / (ssd / |N| + ssd_floor), written with one division.
             let f = g * self.scale / (ssd + self.floor);
-            let out = (ys[i] > max_h) | (ys[i] < min_h) | (zs[i] > max_z);
+            let h = ys[i] - (r0 + rz * zs[i] + rx * xs[i]);
+            let out = (h > max_h) | (h < min_h) | (zs[i] > max_z);
             let f = if out { f * penalty } else { f };
             fitness[i] = if compared { f } else { 0.0 };
         }

@@ -75,6 +75,7 @@ pub use population::Population;
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
 use crate::isa::{Isa, dispatch};
+use crate::road::RoadPlane;
 use breeding::Breeder;
 use change::ChangeMap;
 use fitness::{Kernel, Scratch};
@@ -173,6 +174,8 @@ pub struct Engine {
     mutation: Mutation,
     immigration: Immigration,
     frame_size: (u32, u32, u32, u32),
+    /// The road the region of interest's heights are measured from.
+    road: RoadPlane,
     /// Id of the frame the population was last evaluated against.
     frame_id: Option<u64>,
     /// Flies from this index on have not been evaluated since they were created.
@@ -229,6 +232,7 @@ impl Engine {
             mutation: Mutation::new(n),
             immigration: Immigration::new(params),
             frame_size: (w, h, rig.right.width(), rig.right.height()),
+            road: RoadPlane::FLAT,
             frame_id: None,
             unevaluated_from: 0,
             stats: GenerationStats::default(),
@@ -280,6 +284,18 @@ impl Engine {
         self.isa = isa;
     }
 
+    /// The road the region of interest's heights are measured from.
+    pub fn road(&self) -> &RoadPlane {
+        &self.road
+    }
+
+    /// Measures the region of interest's heights from `road` from now on (new flies are drawn
+    /// above it, flies are judged against it at their next evaluation).
+    pub fn set_road(&mut self, road: RoadPlane) {
+        self.road = road;
+        self.setup.sampler.road = road.coefficients();
+    }
+
     /// Runs one generation against `frame` (see the module docs for the steps).
     pub fn step(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
         self.check_frame(frame)?;
@@ -289,7 +305,7 @@ impl Engine {
             // Before reproduction, so this generation's immigrants already go where it changed.
             self.change.update(frame.left.block_means());
         }
-        let kernel = Kernel::new(frame, &self.setup.params);
+        let kernel = Kernel::new(frame, &self.setup.params, &self.road);
         self.immigration.probed = 0;
         if self.frame_id.is_some() {
             if new_frame {

@@ -19,8 +19,12 @@ pub(super) struct Sampler {
     inv_depth: (f32, f32),
     /// Undistorted normalised bounds (x0, x1, y0, y1) of each 16x16 block of the left image.
     pub(super) blocks: Vec<[f32; 4]>,
-    /// Road region of interest as (min height, max height): new flies are drawn inside it.
+    /// Road region of interest as (min height, max height) above `road`: new flies are drawn
+    /// inside it.
     heights: Option<(f32, f32)>,
+    /// The road the heights are measured from: `[height, slope_z, slope_x]`
+    /// ([`crate::road::RoadPlane`]).
+    pub(super) road: [f32; 3],
     /// Vehicle from left camera: `p_vehicle = m * p_cam + c`.
     m: [f32; 9],
     c: [f32; 3],
@@ -44,7 +48,8 @@ impl Sampler {
     /// Whether a new fly at `p` lies in the region of interest (always true without one).
     #[inline]
     pub(super) fn in_roi(&self, p: &[f32; 3]) -> bool {
-        self.heights.is_none_or(|(lo, hi)| p[1] >= lo && p[1] <= hi)
+        let h = p[1] - (self.road[0] + self.road[1] * p[2] + self.road[2] * p[0]);
+        self.heights.is_none_or(|(lo, hi)| h >= lo && h <= hi)
     }
 
     #[inline]
@@ -79,9 +84,12 @@ impl Sampler {
     pub(super) fn ray_range(&self, xn: f32, yn: f32) -> Option<(f32, f32)> {
         let (mut near, mut far) = (1.0 / self.inv_depth.1, 1.0 / self.inv_depth.0);
         if let Some((lo, hi)) = self.heights {
-            // Height along the ray: y(d) = c_y + d * k.
-            let k = self.m[3] * xn + self.m[4] * yn + self.m[5];
-            let c = self.c[1];
+            // Height above the road along the ray: h(d) = c + d * k, where y(d) = c_y + d k_y,
+            // x(d), z(d) likewise, and the road rises by slope_z z + slope_x x.
+            let along = |row: usize| self.m[row] * xn + self.m[row + 1] * yn + self.m[row + 2];
+            let [r0, rz, rx] = self.road;
+            let k = along(3) - rz * along(6) - rx * along(0);
+            let c = self.c[1] - r0 - rz * self.c[2] - rx * self.c[0];
             if k.abs() < 1e-6 {
                 if c < lo || c > hi {
                     return None;
@@ -198,6 +206,7 @@ impl Sampler {
             inv_depth: ((1.0 / far) as f32, (1.0 / params.min_depth) as f32),
             blocks,
             heights,
+            road: [0.0; 3],
             m: [
                 ex.x as f32,
                 ey.x as f32,

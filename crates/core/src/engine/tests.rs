@@ -185,7 +185,7 @@ fn new_frame_reevaluates_every_fly() {
     assert!(s.new_frame);
     assert_eq!(s.evaluated, 500, "new frame: survivors re-evaluated too");
     // The stored fitness is the one a fresh engine computes on frame b for the same flies.
-    let kernel = Kernel::new(&b, e.params());
+    let kernel = Kernel::new(&b, e.params(), &RoadPlane::FLAT);
     let mut fresh = e.population().clone();
     let n = fresh.len();
     kernel.evaluate(
@@ -380,7 +380,7 @@ fn batched_redraw_draws_what_one_by_one_sampling_would() {
     let from = 40;
     let (mut batched, mut reference) = (engine(), engine());
     let frame = wall_frame(&rig(), 4.0, 1, 1);
-    let kernel = Kernel::new(&frame, &batched.setup.params);
+    let kernel = Kernel::new(&frame, &batched.setup.params, &RoadPlane::FLAT);
     let ctx = Context::of(
         &batched.setup,
         &batched.change,
@@ -605,7 +605,7 @@ fn probed_immigrants_reach_the_fitness_peak_of_their_ray() {
     let k = e.setup.params.immigrant_probes as usize;
     let probing = e.immigration.probed / (k + REFINE_STAGES * REFINE_PROBES);
     assert!(probing > 100, "{probing} immigrants probed");
-    let kernel = Kernel::new(&b, &e.setup.params);
+    let kernel = Kernel::new(&b, &e.setup.params, &RoadPlane::FLAT);
     let steps = 2000;
     let mut dense = Population::with_len(steps);
     let mut scratch = fitness::Scratch::new(steps);
@@ -772,7 +772,7 @@ fn every_instruction_set_gives_the_same_fitness() {
     }
     let eval = |isa| {
         let mut pop = e.pop.clone();
-        let kernel = Kernel::new(&frame, &e.setup.params);
+        let kernel = Kernel::new(&frame, &e.setup.params, &RoadPlane::FLAT);
         let n = pop.len();
         let m = kernel.evaluate(
             isa,
