@@ -164,7 +164,13 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         (Box::new(feed), generations, generations)
     };
     let run = replay::run(feed.as_mut(), params, generations, per_frame).context("replay")?;
-    replay::write_outputs(&args.out, &run.engine, &run.left, &run.trace)?;
+    replay::write_outputs(
+        &args.out,
+        &run.engine,
+        &run.ambiguity,
+        &run.left,
+        &run.trace,
+    )?;
     let decision = flyd_core::decision::DecisionConfig::default();
     let reaction = feed.first_obstacle().and_then(|f| {
         replay::Reaction::of(

@@ -196,6 +196,8 @@ impl FrameFeed for ScenarioFeed {
 /// A finished replay: the engine as it ended, and one trace row per generation.
 pub struct Replay {
     pub engine: Engine,
+    /// Every fly's match ambiguity on the last frame ([`Engine::ambiguity`]).
+    pub ambiguity: Vec<f32>,
     pub trace: Vec<TraceRow>,
     /// The left image of the last frame.
     pub left: RgbImage,
@@ -235,8 +237,17 @@ pub fn run(
             elapsed,
         });
     }
+    let mut ambiguity = vec![f32::INFINITY; engine.population().len()];
+    let all: Vec<u32> = (0..ambiguity.len() as u32).collect();
+    for (flies, out) in all
+        .chunks(engine.ambiguity_capacity().max(1))
+        .zip(ambiguity.chunks_mut(engine.ambiguity_capacity().max(1)))
+    {
+        engine.ambiguity(&frame, flies, out)?;
+    }
     Ok(Replay {
         engine,
+        ambiguity,
         trace,
         left,
         frames: index.map_or(0, |i| i + 1),
@@ -370,11 +381,18 @@ pub struct TraceRow {
 }
 
 /// Writes `flies.csv`.
-pub fn write_flies_csv(pop: &Population, path: &Path) -> Result<(), ReplayError> {
+pub fn write_flies_csv(
+    pop: &Population,
+    ambiguity: &[f32],
+    path: &Path,
+) -> Result<(), ReplayError> {
     let file = std::fs::File::create(path).map_err(io_err(path))?;
     let mut w = std::io::BufWriter::new(file);
     let write = |w: &mut std::io::BufWriter<std::fs::File>| -> std::io::Result<()> {
-        writeln!(w, "x,y,z,fitness,warning,u_left,v_left,u_right,v_right")?;
+        writeln!(
+            w,
+            "x,y,z,fitness,warning,u_left,v_left,u_right,v_right,raw_fitness,ambiguity"
+        )?;
         let px = |v: f32| {
             if v.is_finite() {
                 format!("{v:.3}")
@@ -385,7 +403,7 @@ pub fn write_flies_csv(pop: &Population, path: &Path) -> Result<(), ReplayError>
         for i in 0..pop.len() {
             writeln!(
                 w,
-                "{:.5},{:.5},{:.5},{:e},{:e},{},{},{},{}",
+                "{:.5},{:.5},{:.5},{:e},{:e},{},{},{},{},{:e},{}",
                 pop.x[i],
                 pop.y[i],
                 pop.z[i],
@@ -395,6 +413,10 @@ pub fn write_flies_csv(pop: &Population, path: &Path) -> Result<(), ReplayError>
                 px(pop.v_left[i]),
                 px(pop.u_right[i]),
                 px(pop.v_right[i]),
+                pop.raw_fitness[i],
+                ambiguity
+                    .get(i)
+                    .map_or(String::new(), |a| format!("{a:.4}")),
             )?;
         }
         w.flush()
@@ -477,12 +499,13 @@ pub fn warning_map(width: u32, height: u32, pop: &Population) -> GrayImage {
 pub fn write_outputs(
     dir: &Path,
     engine: &Engine,
+    ambiguity: &[f32],
     left: &RgbImage,
     trace: &[TraceRow],
 ) -> Result<(), ReplayError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
     let pop = engine.population();
-    write_flies_csv(pop, &dir.join("flies.csv"))?;
+    write_flies_csv(pop, ambiguity, &dir.join("flies.csv"))?;
     write_trace_csv(trace, &dir.join("trace.csv"))?;
     let save_err = |path: &Path| {
         let path = path.display().to_string();

@@ -48,7 +48,7 @@ fn replay(set: &str, calib: &str) -> Vec<Fly> {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next(),
-        Some("x,y,z,fitness,warning,u_left,v_left,u_right,v_right")
+        Some("x,y,z,fitness,warning,u_left,v_left,u_right,v_right,raw_fitness,ambiguity")
     );
     let flies: Vec<Fly> = lines
         .filter_map(|l| {

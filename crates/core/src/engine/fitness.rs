@@ -90,6 +90,11 @@ impl<'a> Kernel<'a> {
         }
     }
 
+    /// The same kernel without the region of interest (every fly judged on its match alone).
+    pub(crate) fn without_roi(self) -> Self {
+        Self { roi: None, ..self }
+    }
+
     /// Gradient byte of the left image at the pixel nearest to `(u, v)` (0 outside it).
     #[inline]
     pub(crate) fn left_gradient(&self, u: f32, v: f32) -> u8 {

@@ -67,10 +67,12 @@ mod refresh;
 mod sampler;
 mod select;
 mod sharing;
+mod uniqueness;
 mod windows;
 
 pub use params::{EngineParams, ParamError, RoadRoi};
 pub use population::Population;
+pub use uniqueness::SHIFTS as AMBIGUITY_SHIFTS;
 
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
@@ -89,6 +91,7 @@ use refresh::Refresh;
 use sampler::Sampler;
 use select::Survival;
 use sharing::{Grid, Mates};
+use uniqueness::Uniqueness;
 
 /// Why an engine cannot be built or run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -145,6 +148,9 @@ pub struct GenerationStats {
     pub change: f32,
 }
 
+/// Flies one [`Engine::ambiguity`] call looks at, at most.
+const AMBIGUITY_FLIES: usize = 512;
+
 /// What an engine is built with and never changes: the parameters, the cameras' projections
 /// and the domain new flies are drawn from.
 struct Setup {
@@ -173,6 +179,7 @@ pub struct Engine {
     breeder: Breeder,
     mutation: Mutation,
     immigration: Immigration,
+    uniqueness: Uniqueness,
     frame_size: (u32, u32, u32, u32),
     /// The road the region of interest's heights are measured from.
     road: RoadPlane,
@@ -221,7 +228,9 @@ impl Engine {
         let mut engine = Self {
             sharing: Grid::new(w, h, cell_px, params.sharing_exponent, n),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
-            scratch: Scratch::new(Immigration::probe_capacity(params)),
+            scratch: Scratch::new(
+                Immigration::probe_capacity(params).max(AMBIGUITY_FLIES * AMBIGUITY_SHIFTS.len()),
+            ),
             isa: Isa::detect(),
             pop: Population::with_len(n),
             change: ChangeMap::new(w, h),
@@ -231,6 +240,10 @@ impl Engine {
             breeder: Breeder::new(n),
             mutation: Mutation::new(n),
             immigration: Immigration::new(params),
+            uniqueness: Uniqueness::new(
+                AMBIGUITY_FLIES,
+                rig.right.intrinsics().fx * rig.baseline(),
+            ),
             frame_size: (w, h, rig.right.width(), rig.right.height()),
             road: RoadPlane::FLAT,
             frame_id: None,

@@ -103,6 +103,25 @@ impl Sampler {
         (near < far).then(|| (1.0 / far, 1.0 / near))
     }
 
+    /// Depth of vehicle-frame point `p` along the left camera's optical axis.
+    #[inline]
+    pub(super) fn depth_of(&self, p: &[f32; 3]) -> f32 {
+        // p = m cam + c, m a rotation: cam = m^T (p - c); the depth is its z.
+        let d = [p[0] - self.c[0], p[1] - self.c[1], p[2] - self.c[2]];
+        self.m[2] * d[0] + self.m[5] * d[1] + self.m[8] * d[2]
+    }
+
+    /// The point `scale` times as far from the left camera as `p`, on the same ray.
+    #[inline]
+    pub(super) fn along_ray(&self, p: &[f32; 3], scale: f32) -> [f32; 3] {
+        let c = &self.c;
+        [
+            c[0] + (p[0] - c[0]) * scale,
+            c[1] + (p[1] - c[1]) * scale,
+            c[2] + (p[2] - c[2]) * scale,
+        ]
+    }
+
     /// The point at depth `d` along the left camera's ray through normalised `(xn, yn)`.
     #[inline]
     pub(super) fn at(&self, xn: f32, yn: f32, d: f32) -> [f32; 3] {

@@ -120,7 +120,7 @@ impl<'a, const W: usize> Windows<'a, W> {
         // wider, for the interpolation) and the centre's gradient byte. One bounds check per
         // window and image, instead of one per load.
         let lneed = (last * lstep + W).max(gl_at + 1);
-        let rneed = (last * rstep + W + 2 * BPP).max(gr_at + 1);
+        let rneed = (last * rstep + W + 2 * BPP).max(gr_at + BPP + 1);
         let (Some(lmax), Some(rmax)) = (ld.len().checked_sub(lneed), rd.len().checked_sub(rneed))
         else {
             ssds.fill(-1);
@@ -142,12 +142,22 @@ impl<'a, const W: usize> Windows<'a, W> {
             if (l > lmax) | (r > rmax) {
                 continue;
             }
+            // The right gradient is the one of the pixel nearest to the right window's centre
+            // (at `t` / 128 of a pixel past `r`'s): the window's own pixel, taken whatever the
+            // fraction, pulled every fly half a pixel of disparity short of the match.
             // SAFETY: l <= lmax = ld.len() - lneed and gl_at < lneed, so l + gl_at < ld.len();
-            // the same for the right image.
-            let (gl, gr) = unsafe { (*ld.get_unchecked(l + gl_at), *rd.get_unchecked(r + gr_at)) };
+            // r <= rmax = rd.len() - rneed and gr_at + BPP < rneed, the same there.
+            let (gl, g0, g1) = unsafe {
+                (
+                    *ld.get_unchecked(l + gl_at),
+                    *rd.get_unchecked(r + gr_at),
+                    *rd.get_unchecked(r + gr_at + BPP),
+                )
+            };
+            let t = u32::from(ts[i].min(128));
+            let gr = (u32::from(g0) * (128 - t) + u32::from(g1) * t + 64) >> 7;
             // t = 128 is all of the next pixel: the same bytes as t = 0 one pixel on (the SIMD
-            // kernels need t < 128; `rneed` has room for the pixel more). The gradient stays
-            // the one at the window's own centre.
+            // kernels need t < 128; `rneed` has room for the pixel more).
             let (rw, t) = if ts[i] >= 128 {
                 (r + BPP, 0)
             } else {
@@ -169,7 +179,7 @@ impl<'a, const W: usize> Windows<'a, W> {
                 Level::Avx2 => unsafe { avx2::ssd::<W>(lp, lstep, rp, rstep, n_rows, m16, t) },
                 _ => ssd::<W>(ld, l, lstep, rd, rw, rstep, n_rows, self.mask, t),
             };
-            grads[i] = i32::from(gl) * i32::from(gr);
+            grads[i] = i32::from(gl) * gr as i32;
             // At most 255^2 per sample, or the baseline's u32::MAX / 2 = i32::MAX for a
             // window off the buffer: inside an i32.
             ssds[i] = ssd as i32;
