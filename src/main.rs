@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use flyd::replay::{self, FrameFeed, PairFeed, ScenarioFeed, Summary};
+use flyd::replay::{self, FrameFeed, PairFeed, ScenarioFeed, SequenceFeed, Summary};
 use flyd_core::engine::EngineParams;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -70,35 +70,53 @@ struct BenchArgs {
 #[derive(Args)]
 struct ReplayArgs {
     /// Left image (PNG or JPEG).
-    #[arg(long, requires_all = ["right", "calib"], conflicts_with = "scenario")]
+    #[arg(long, requires_all = ["right", "calib"], conflicts_with_all = ["scenario", "sequence"])]
     left: Option<PathBuf>,
     /// Right image (PNG or JPEG).
     #[arg(long)]
     right: Option<PathBuf>,
-    /// Calibration: flyd rig TOML, Middlebury calib.txt or OpenCV stereo YAML.
+    /// Calibration: flyd rig TOML, KITTI calib_cam_to_cam.txt or calib.txt, Middlebury
+    /// calib.txt or OpenCV stereo YAML.
     #[arg(long)]
     calib: Option<PathBuf>,
-    /// Generations to run (default: 50 on a stereo pair, the whole scenario otherwise).
+    /// A folder of stereo pairs, replayed in name order: left/ + right/, or KITTI's
+    /// image_02/data + image_03/data (needs --calib).
+    #[arg(long, requires = "calib", conflicts_with = "scenario")]
+    sequence: Option<PathBuf>,
+    /// With --sequence: frames per second of the recording.
+    #[arg(long, default_value_t = 10.0)]
+    fps: f64,
+    /// Generations to run (default: 50 on a stereo pair, every frame otherwise).
     #[arg(long)]
     generations: Option<u64>,
-    /// Population size.
-    #[arg(long, default_value_t = EngineParams::default().flies)]
-    flies: usize,
-    /// Seed of the random generator.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
+    /// Population size (default: the configuration's).
+    #[arg(long)]
+    flies: Option<usize>,
+    /// Seed of the random generator (default: the configuration's).
+    #[arg(long)]
+    seed: Option<u64>,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
     /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian.
     #[arg(long)]
     scenario: Option<String>,
-    /// With --scenario: generations per scenario frame (3 = 30 fps at ~10 ms a generation).
-    #[arg(long, default_value_t = 3)]
-    generations_per_frame: u64,
+    /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
+    /// sequence, what the daemon runs at --fps: a burst of evolution.burst_generations, then
+    /// one per evolution.generation_period_ms).
+    #[arg(long)]
+    generations_per_frame: Option<u64>,
     /// With --scenario: image size.
     #[arg(long, default_value_t = 640)]
     width: u32,
     #[arg(long, default_value_t = 480)]
     height: u32,
+    /// The vehicle's speed the decision assumes, km/h (default: the configuration's
+    /// vehicle.assumed_speed_kmh, 30).
+    #[arg(long, value_name = "KMH")]
+    speed: Option<f64>,
+    /// Take [engine], [perception], [decision], [vehicle] and [evolution] from this daemon
+    /// configuration (default: the built-in defaults).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
@@ -136,53 +154,99 @@ fn main() -> ExitCode {
 }
 
 fn replay_command(args: ReplayArgs) -> Result<()> {
-    let mut params = EngineParams {
-        flies: args.flies,
-        seed: args.seed,
-        ..EngineParams::default()
+    let config = match &args.config {
+        Some(path) => config::check(path)?,
+        None => DaemonConfig::with_rig(flyd::mock::mock_rig(640, 480)?),
     };
-    let (mut feed, generations, per_frame): (Box<dyn FrameFeed>, u64, u64) = if let Some(name) =
+    let mut params = config.engine.clone();
+    if let Some(flies) = args.flies {
+        params.flies = flies;
+    }
+    if let Some(seed) = args.seed {
+        params.seed = seed;
+    }
+    let speed_kmh = args.speed.unwrap_or(config.vehicle.assumed_speed * 3.6);
+    if !(speed_kmh.is_finite() && (0.0..=250.0).contains(&speed_kmh)) {
+        bail!("--speed {speed_kmh}: must be within 0..=250 km/h");
+    }
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        bail!(
+            "--fps {}: must be a positive number of frames per second",
+            args.fps
+        );
+    }
+    let (mut feed, generations, per_frame, fps): (Box<dyn FrameFeed>, u64, u64, f64) = if let Some(
+        name,
+    ) =
         &args.scenario
     {
         let feed = ScenarioFeed::new(name, args.width, args.height)?;
-        let per_frame = args.generations_per_frame.max(1);
+        let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
         let generations = args.generations.unwrap_or(feed.frames() * per_frame);
-        (Box::new(feed), generations, per_frame)
+        let fps = feed.fps();
+        (Box::new(feed), generations, per_frame, fps)
+    } else if let Some(dir) = &args.sequence {
+        let Some(calib) = &args.calib else {
+            bail!("--sequence needs --calib");
+        };
+        let (feed, cal) = SequenceFeed::open(dir, calib)?;
+        apply_calibration(&mut params, &cal);
+        let per_frame = args
+            .generations_per_frame
+            .unwrap_or_else(|| replay::daemon_generations_per_frame(&config.evolution, args.fps))
+            .max(1);
+        let generations = args.generations.unwrap_or(feed.frames() * per_frame);
+        (Box::new(feed), generations, per_frame, args.fps)
     } else {
         let (Some(left), Some(right), Some(calib)) = (&args.left, &args.right, &args.calib) else {
-            bail!("replay needs --left, --right and --calib (or --scenario)");
+            bail!(
+                "replay needs --left, --right and --calib, --sequence and --calib, or --scenario"
+            );
         };
         let (feed, cal) = PairFeed::load(left, right, calib)?;
-        if let Some((min, max)) = cal.depth_range {
-            params.min_depth = min;
-            params.max_depth = max;
-        }
-        if !cal.has_road {
-            params.roi = None;
-        }
+        apply_calibration(&mut params, &cal);
         let generations = args.generations.unwrap_or(50);
-        (Box::new(feed), generations, generations)
+        // A still camera filming the pair at 30 fps, 3 generations a frame (no change, so
+        // no burst): what the daemon sees standing in front of that scene.
+        let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
+        let feed = feed.repeated(generations.div_ceil(per_frame));
+        (Box::new(feed), generations, per_frame, 30.0)
     };
-    let run = replay::run(feed.as_mut(), params, generations, per_frame).context("replay")?;
-    replay::write_outputs(
-        &args.out,
-        &run.engine,
-        &run.ambiguity,
-        &run.left,
-        &run.trace,
-    )?;
-    let decision = flyd_core::decision::DecisionConfig::default();
+    let settings = replay::Settings {
+        params,
+        perception: config.perception,
+        decision: config.decision,
+        speed: speed_kmh / 3.6,
+        generations,
+        per_frame,
+        fps,
+        warmup_generations: config.evolution.warmup_generations,
+    };
+    let run = replay::run(feed.as_mut(), settings).context("replay")?;
+    replay::write_outputs(&args.out, &run)?;
     let reaction = feed.first_obstacle().and_then(|f| {
         replay::Reaction::of(
             &run.trace,
             f,
-            decision.slow_threshold,
-            decision.stop_threshold,
+            config.decision.slow_threshold,
+            config.decision.stop_threshold,
         )
     });
     let summary = Summary::of(&run, &args.out, reaction);
     println!("{}", serde_json::to_string_pretty(&summary)?);
     Ok(())
+}
+
+/// A recorded pair's calibration into the engine's parameters: its depth range, if it gives
+/// one, and no road region of interest for a rig the calibration does not place on a road.
+fn apply_calibration(params: &mut EngineParams, cal: &flyd_core::calib::Calibration) {
+    if let Some((min, max)) = cal.depth_range {
+        params.min_depth = min;
+        params.max_depth = max;
+    }
+    if !cal.has_road {
+        params.roi = None;
+    }
 }
 
 fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {

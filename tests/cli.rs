@@ -78,7 +78,7 @@ fn bad_configs_name_the_key_and_the_file() {
     );
     check(
         "flies = 5000",
-        "flies = 5000\nmin_depth = 30.0",
+        "flies = 5000\nmin_depth = 50.0",
         "engine.max_depth",
         "min_depth",
     );

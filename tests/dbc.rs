@@ -139,11 +139,24 @@ fn status_case(msg: StatusMsg, c: u8) -> Case {
 
 fn obstacle_case(msg: ObstacleMsg, c: u8) -> Case {
     let valid = if msg.valid { "VALID" } else { "NO_OBSTACLE" };
+    let confirmed = if msg.confirmed {
+        "CONFIRMED"
+    } else {
+        "UNCONFIRMED"
+    };
+    let road = if msg.road_measured {
+        "MEASURED"
+    } else {
+        "PRIOR"
+    };
     let signals = vec![
         ("ObstacleValid", Want::Named(valid)),
         ("Distance", Want::Phys(msg.distance)),
         ("Lateral", Want::Phys(msg.lateral)),
         ("Confidence", Want::Phys(msg.confidence)),
+        ("ObstacleConfirmed", Want::Named(confirmed)),
+        ("RoadMeasured", Want::Named(road)),
+        ("Height", Want::Phys(msg.height)),
     ];
     case(&msg, c, signals)
 }
@@ -218,6 +231,9 @@ fn cases() -> Vec<Case> {
                 distance: 12.34,
                 lateral: -1.5,
                 confidence: 87.0,
+                confirmed: true,
+                height: 1.72,
+                road_measured: true,
             },
             1,
         ),
@@ -227,10 +243,20 @@ fn cases() -> Vec<Case> {
                 distance: 655.35,
                 lateral: 327.67,
                 confidence: 100.0,
+                confirmed: false,
+                height: 5.1,
+                road_measured: false,
             },
             13,
         ),
         obstacle_case(ObstacleMsg::NONE, 0),
+        obstacle_case(
+            ObstacleMsg {
+                road_measured: true,
+                ..ObstacleMsg::NONE
+            },
+            7,
+        ),
     ]
 }
 
@@ -466,6 +492,9 @@ fn saturation_matches_the_dbc_ranges() {
         (ObstacleMsg::NAME, "Confidence", |v| {
             obstacle_with(|m| m.confidence = v)
         }),
+        (ObstacleMsg::NAME, "Height", |v| {
+            obstacle_with(|m| m.height = v)
+        }),
     ];
     let dbc = load();
     for (msg_name, sig_name, build) in builds {
@@ -527,6 +556,9 @@ fn obstacle_with(f: impl FnOnce(&mut ObstacleMsg)) -> [u8; 8] {
         distance: 10.0,
         lateral: 0.0,
         confidence: 50.0,
+        confirmed: true,
+        height: 1.5,
+        road_measured: true,
     };
     f(&mut m);
     m.encode(AliveCounter::ZERO)

@@ -656,17 +656,46 @@ fn flyd_never_stops_on_an_empty_road_and_reports_running() {
         label_counts(&statuses, "State")
     );
     assert_eq!(fault, 0, "FAULT state on an empty road");
+    // CLEAR once warmed up: after the first CLEAR, nothing the perception asks for is more
+    // (a SLOW may still come from a fault: FAULT_FALLBACK while DEGRADED), and CLEAR is what
+    // the vehicle gets most of the time.
+    let from_clear: Vec<&&Frame> = commands
+        .iter()
+        .skip_while(|f| f.label("Command") != "CLEAR")
+        .collect();
+    let perception_alarms: Vec<&&&Frame> = from_clear
+        .iter()
+        .filter(|f| f.label("Command") != "CLEAR" && f.label("CommandReason") == "PERCEPTION")
+        .collect();
+    assert!(
+        perception_alarms.is_empty(),
+        "{} commands above CLEAR from perception on an empty road, the first {:?}",
+        perception_alarms.len(),
+        perception_alarms.first()
+    );
+    let clear = from_clear
+        .iter()
+        .filter(|f| f.label("Command") == "CLEAR")
+        .count();
+    assert!(
+        !from_clear.is_empty() && clear * 4 >= from_clear.len() * 3,
+        "CLEAR in only {clear} of {} commands after the first CLEAR: {}",
+        from_clear.len(),
+        label_counts(&commands, "Command")
+    );
     let last = statuses.last().expect("statuses");
     let mut seen = FaultBits::empty();
     for f in &statuses {
         seen = FaultBits::from_bits(seen.bits() | faults(f).bits());
     }
     r.run.report(&format!(
-        "empty road, {} frames played: no STOP in {} commands ({}); states {}; faults seen {seen}; \
+        "empty road, {} frames played: no STOP in {} commands ({}), CLEAR in {clear} of the {} \
+         from the first CLEAR, none above it from perception; states {}; faults seen {seen}; \
          last status before SIGTERM {}; exit 0; {bus}",
         r.timeline.len(),
         r.messages("FLYD_Command").len(),
         label_counts(&commands, "Command"),
+        from_clear.len(),
         label_counts(&statuses, "State"),
         last.label("State"),
     ));

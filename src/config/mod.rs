@@ -21,9 +21,10 @@ use crate::capture::CaptureFormat;
 use flyd_core::calib::{self, CalibError};
 use flyd_core::can::CanConfig;
 use flyd_core::decision::Command;
-use flyd_core::decision::{DecisionConfig, DecisionConfigError};
+use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
 use flyd_core::engine::{Engine, EngineError, EngineParams};
 use flyd_core::geometry::StereoRig;
+use flyd_core::perception::PerceptionConfig;
 use flyd_core::status::FaultBits;
 
 /// Why a configuration cannot be used.
@@ -149,12 +150,6 @@ pub struct EvolutionConfig {
     pub blind_matched: f64,
     /// Consecutive new pairs matching nowhere before CAMERA_ERROR (perception blind).
     pub blind_pairs: u32,
-    /// Half-width of the vehicle's lane, metres (vehicle x): flies outside it are not obstacles.
-    pub lane_half_width: f64,
-    /// How many of the fittest in-lane flies the nearest-obstacle estimate looks at.
-    pub obstacle_best_flies: usize,
-    /// Fewer fit in-lane flies than this: no obstacle is reported.
-    pub obstacle_min_flies: usize,
 }
 
 impl Default for EvolutionConfig {
@@ -168,9 +163,22 @@ impl Default for EvolutionConfig {
             skew_fault_rejects: 3,
             blind_matched: 0.25,
             blind_pairs: 3,
-            lane_half_width: 1.0,
-            obstacle_best_flies: 50,
-            obstacle_min_flies: 5,
+        }
+    }
+}
+
+/// What flyd knows of the vehicle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VehicleConfig {
+    /// The speed the decision assumes, m/s: the highest the vehicle drives at while flyd is
+    /// in charge (flyd does not measure the speed yet).
+    pub assumed_speed: f64,
+}
+
+impl Default for VehicleConfig {
+    fn default() -> Self {
+        Self {
+            assumed_speed: 30.0 / 3.6,
         }
     }
 }
@@ -246,6 +254,8 @@ pub struct DaemonConfig {
     pub calibration: CalibrationSource,
     pub engine: EngineParams,
     pub decision: DecisionConfig,
+    pub perception: PerceptionConfig,
+    pub vehicle: VehicleConfig,
     pub evolution: EvolutionConfig,
     pub control: ControlConfig,
     pub can: CanSection,
@@ -273,6 +283,8 @@ impl DaemonConfig {
             calibration: CalibrationSource::Rig(Box::new(rig)),
             engine: EngineParams::default(),
             decision: DecisionConfig::default(),
+            perception: PerceptionConfig::default(),
+            vehicle: VehicleConfig::default(),
             evolution: EvolutionConfig::default(),
             control: ControlConfig::default(),
             can: CanSection {

@@ -24,6 +24,10 @@ pub(super) struct RawConfig {
     #[serde(default)]
     decision: RawDecision,
     #[serde(default)]
+    perception: PerceptionConfig,
+    #[serde(default)]
+    vehicle: RawVehicle,
+    #[serde(default)]
     evolution: RawEvolution,
     #[serde(default)]
     control: RawControl,
@@ -69,6 +73,7 @@ struct RawCalibration {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 struct RawDecision {
+    mode: RawMode,
     slow_threshold: f64,
     stop_threshold: f64,
     release_ratio: f64,
@@ -77,6 +82,45 @@ struct RawDecision {
     safe_command: SafeCommand,
     slow_decel: f64,
     stop_decel: f64,
+    reaction_time_ms: f64,
+    margin_m: f64,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+enum RawMode {
+    #[serde(rename = "obstacle")]
+    Obstacle,
+    #[serde(rename = "global-warning")]
+    GlobalWarning,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawVehicle {
+    assumed_speed_kmh: f64,
+}
+
+impl Default for RawVehicle {
+    fn default() -> Self {
+        Self {
+            assumed_speed_kmh: VehicleConfig::default().assumed_speed * 3.6,
+        }
+    }
+}
+
+impl RawVehicle {
+    fn resolve(self) -> Result<VehicleConfig, Invalid> {
+        let v = self.assumed_speed_kmh;
+        if !(v.is_finite() && (0.0..=250.0).contains(&v)) {
+            return bad(
+                "vehicle.assumed_speed_kmh",
+                format!("must be within 0..=250 km/h, got {v}"),
+            );
+        }
+        Ok(VehicleConfig {
+            assumed_speed: v / 3.6,
+        })
+    }
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -93,6 +137,10 @@ impl Default for RawDecision {
     fn default() -> Self {
         let d = DecisionConfig::default();
         Self {
+            mode: match d.mode {
+                DecisionMode::Obstacle => RawMode::Obstacle,
+                DecisionMode::GlobalWarning => RawMode::GlobalWarning,
+            },
             slow_threshold: d.slow_threshold,
             stop_threshold: d.stop_threshold,
             release_ratio: d.release_ratio,
@@ -101,6 +149,8 @@ impl Default for RawDecision {
             safe_command: SafeCommand::Slow,
             slow_decel: d.slow_decel,
             stop_decel: d.stop_decel,
+            reaction_time_ms: d.reaction_time.as_secs_f64() * 1e3,
+            margin_m: d.margin,
         }
     }
 }
@@ -117,9 +167,6 @@ struct RawEvolution {
     skew_fault_rejects: u32,
     blind_matched: f64,
     blind_pairs: u32,
-    lane_half_width: f64,
-    obstacle_best_flies: usize,
-    obstacle_min_flies: usize,
 }
 
 impl Default for RawEvolution {
@@ -134,9 +181,6 @@ impl Default for RawEvolution {
             skew_fault_rejects: d.skew_fault_rejects,
             blind_matched: d.blind_matched,
             blind_pairs: d.blind_pairs,
-            lane_half_width: d.lane_half_width,
-            obstacle_best_flies: d.obstacle_best_flies,
-            obstacle_min_flies: d.obstacle_min_flies,
         }
     }
 }
@@ -212,7 +256,11 @@ impl RawConfig {
             return bad(&format!("engine.{}", e.key), e.reason);
         }
         let decision = self.decision.resolve()?;
-        let evolution = self.evolution.resolve(&self.engine)?;
+        let evolution = self.evolution.resolve()?;
+        if let Err(e) = self.perception.validate() {
+            return bad(&format!("perception.{}", e.key), e.reason);
+        }
+        let vehicle = self.vehicle.resolve()?;
         let control = self.control.resolve()?;
         let can = self.can.resolve(base)?;
         let logging = self.logging.resolve()?;
@@ -230,6 +278,8 @@ impl RawConfig {
             calibration,
             engine: self.engine,
             decision,
+            perception: self.perception,
+            vehicle,
             evolution,
             control,
             can,
@@ -335,7 +385,18 @@ impl RawCalibration {
 
 impl RawDecision {
     fn resolve(self) -> Result<DecisionConfig, Invalid> {
+        let reaction_time = if self.reaction_time_ms == 0.0 {
+            Duration::ZERO
+        } else {
+            millis("decision.reaction_time_ms", self.reaction_time_ms)?
+        };
         let config = DecisionConfig {
+            mode: match self.mode {
+                RawMode::Obstacle => DecisionMode::Obstacle,
+                RawMode::GlobalWarning => DecisionMode::GlobalWarning,
+            },
+            reaction_time,
+            margin: self.margin_m,
             slow_threshold: self.slow_threshold,
             stop_threshold: self.stop_threshold,
             release_ratio: self.release_ratio,
@@ -370,6 +431,8 @@ impl RawDecision {
                         }
                     }
                     DecisionConfigError::UnsafeFallback => "decision.safe_command",
+                    DecisionConfigError::DecelOrder { .. } => "decision.slow_decel",
+                    DecisionConfigError::Margin(_) => "decision.margin_m",
                     DecisionConfigError::Decel { command, .. } => {
                         if command == Command::Slow {
                             "decision.slow_decel"
@@ -385,7 +448,7 @@ impl RawDecision {
 }
 
 impl RawEvolution {
-    fn resolve(self, engine: &EngineParams) -> Result<EvolutionConfig, Invalid> {
+    fn resolve(self) -> Result<EvolutionConfig, Invalid> {
         let generation_period = if self.generation_period_ms == 0.0 {
             None
         } else {
@@ -413,21 +476,6 @@ impl RawEvolution {
         if self.blind_pairs == 0 {
             return bad("evolution.blind_pairs", "must be at least 1");
         }
-        if !(self.lane_half_width.is_finite() && self.lane_half_width > 0.0) {
-            return bad("evolution.lane_half_width", "must be > 0 metres");
-        }
-        if !(1..=engine.flies).contains(&self.obstacle_best_flies) {
-            return bad(
-                "evolution.obstacle_best_flies",
-                format!("must be within 1..=engine.flies ({})", engine.flies),
-            );
-        }
-        if !(1..=self.obstacle_best_flies).contains(&self.obstacle_min_flies) {
-            return bad(
-                "evolution.obstacle_min_flies",
-                "must be within 1..=evolution.obstacle_best_flies",
-            );
-        }
         Ok(EvolutionConfig {
             generation_period,
             burst_generations: self.burst_generations,
@@ -437,9 +485,6 @@ impl RawEvolution {
             skew_fault_rejects: self.skew_fault_rejects,
             blind_matched: self.blind_matched,
             blind_pairs: self.blind_pairs,
-            lane_half_width: self.lane_half_width,
-            obstacle_best_flies: self.obstacle_best_flies,
-            obstacle_min_flies: self.obstacle_min_flies,
         })
     }
 }

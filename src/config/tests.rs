@@ -102,9 +102,26 @@ fn wrong_types_are_named() {
 }
 
 #[test]
+fn the_decision_mode_and_speed_resolve() {
+    let c = parse(&with(
+        "decision",
+        "mode = \"global-warning\"\nreaction_time_ms = 800\nmargin_m = 3.5",
+    ))
+    .expect("valid");
+    assert_eq!(c.decision.mode, DecisionMode::GlobalWarning);
+    assert_eq!(c.decision.reaction_time, Duration::from_millis(800));
+    assert_eq!(c.decision.margin, 3.5);
+    let c = parse(&with("vehicle", "assumed_speed_kmh = 50")).expect("valid");
+    assert!((c.vehicle.assumed_speed - 50.0 / 3.6).abs() < 1e-12);
+    let c = parse(MINIMAL).expect("valid");
+    assert_eq!(c.decision.mode, DecisionMode::Obstacle);
+    assert_eq!(c.perception, PerceptionConfig::default());
+}
+
+#[test]
 fn impossible_values_are_named() {
     check_err(
-        &with("engine", "min_depth = 30.0"),
+        &with("engine", "min_depth = 50.0"),
         "engine.max_depth",
         "greater than min_depth",
     );
@@ -122,6 +139,46 @@ fn impossible_values_are_named() {
         &with("decision", "stop_hold_ms = 0"),
         "decision.stop_hold_ms",
         "> 0",
+    );
+    check_err(
+        &with("decision", "mode = \"paper\""),
+        "decision.mode",
+        "unknown variant",
+    );
+    check_err(
+        &with("decision", "margin_m = -1.0"),
+        "decision.margin_m",
+        ">= 0",
+    );
+    check_err(
+        &with("decision", "slow_decel = 5.0"),
+        "decision.slow_decel",
+        "<=",
+    );
+    check_err(
+        &with("vehicle", "assumed_speed_kmh = 400"),
+        "vehicle.assumed_speed_kmh",
+        "0..=250",
+    );
+    check_err(
+        &with("perception.obstacle", "min_height = 2.5"),
+        "perception.obstacle.max_height",
+        "greater than min_height",
+    );
+    check_err(
+        &with("perception.track", "trigger_frames = 0"),
+        "perception.track.trigger_frames",
+        "1..=100",
+    );
+    check_err(
+        &with("perception.road", "gain = 2.0"),
+        "perception.road.gain",
+        "(0, 1]",
+    );
+    check_err(
+        &with("perception.road", "flies = 1000"),
+        "perception.road.flies",
+        "unknown field",
     );
     check_err(
         &with("cameras", "timestamp_tolerance_ms = 0"),

@@ -6,23 +6,24 @@
 //! every 100 ms by default (the [`CanConfig`] periods), whether or not anything changed. A
 //! warning that escalates the command (CLEAR to SLOW, SLOW to STOP) sends `FLYD_Command` at
 //! once, between two periodic frames: a stop order does not wait for the period. The command is
-//! decided by the [`Decider`] fed with
+//! decided by the [`Decider`] (in metres by default: the confirmed obstacle against the stopping
+//! distance, see [`flyd_core::decision`]) fed with
 //!
-//! - the **highest global warning** among the snapshots received since the previous command (a
-//!   spike between two commands is not lost; releases stay conservative), or the newest
-//!   snapshot's when none arrived;
+//! - the **worst snapshot** since the previous command ([`DecisionInput::worst`]: the nearest
+//!   confirmed obstacle, the highest global warning; a spike between two commands is not lost,
+//!   releases stay conservative), or the newest snapshot's when none arrived;
+//! - the assumed speed (`vehicle.assumed_speed_kmh`: flyd does not measure it yet);
 //! - the current fault bits: any fault makes the decider fall back to its safe command.
 //!
 //! Snapshots of a population still warming up (fewer than `warmup_generations`) carry no
-//! trusted warning: the decider gets NaN (its fault path: the safe command, reason
-//! FAULT_FALLBACK) and the state stays INIT. `READY=1` goes to systemd with the first snapshot
-//! (both cameras deliver, a generation ran); RUNNING follows the warm-up.
+//! trusted evidence: the decider gets an invalid input (its fault path: the safe command,
+//! reason FAULT_FALLBACK) and the state stays INIT. `READY=1` goes to systemd with the first
+//! snapshot (both cameras deliver, a generation ran); RUNNING follows the warm-up.
 //!
-//! The command frame's `GlobalWarning` signal carries that global warning (the paper's mean
-//! warning, made portable by the engine's photometric normalisation and per-sample SSD; the
-//! value the thresholds compare). The engine's `danger` (a fitness-weighted mean of the
-//! geometric factor) says where the evidence is, not how much there is: on an empty road a few
-//! weak matches near the vehicle give it a high value, so it is logged, never decided on.
+//! The command frame's `GlobalWarning` signal carries the paper's global warning (the mean
+//! warning; what the `global-warning` decision mode compares with its thresholds). The
+//! engine's `danger` (a fitness-weighted mean of the geometric factor) says where the evidence
+//! is, not how much there is, so it is logged, never decided on.
 //!
 //! CAN write errors never stop the loop: they are counted, logged once per episode (and once
 //! when writes recover), raise CAN_TX_ERROR, and the next period simply sends again.
@@ -42,14 +43,15 @@ use super::evolution::EvolutionCounters;
 use super::faults::{FaultMonitor, Observation};
 use super::notify::ServiceNotifier;
 use super::ring::RingCounters;
-use super::snapshot::{ObstacleEstimate, Snapshot};
+use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
 use flyd_core::can::bus::{BusError, CanBus};
-use flyd_core::can::messages::{CommandMsg, StatusMsg};
+use flyd_core::can::messages::{CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::perception::RoadSource;
 use flyd_core::status::{FaultBits, State};
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
@@ -129,6 +131,8 @@ pub struct ControlThread<B: CanBus> {
     pub notifier: ServiceNotifier,
     pub inputs: Inputs,
     pub clock: SharedClock,
+    /// The vehicle's speed the decision assumes, m/s.
+    pub speed: f64,
     pub can: CanConfig,
     pub stats_interval: Duration,
     /// External shutdown request (signal, test, `--duration`).
@@ -142,7 +146,8 @@ struct Loop {
     latest: Option<Snapshot>,
     latest_at: Option<Duration>,
     /// Highest global warning since the last command (NaN-propagating: a NaN is a fault).
-    warning_since_command: Option<f64>,
+    /// The worst snapshot since the last command (see the module docs).
+    worst_since_command: Option<DecisionInput>,
     faults: FaultBits,
     state: State,
     command: Command,
@@ -165,7 +170,7 @@ impl<B: CanBus> ControlThread<B> {
         let mut s = Loop {
             latest: None,
             latest_at: None,
-            warning_since_command: None,
+            worst_since_command: None,
             faults: FaultBits::empty(),
             state: State::Init,
             command: self.decider.command(),
@@ -187,8 +192,8 @@ impl<B: CanBus> ControlThread<B> {
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
             let escalation = s
-                .warning_since_command
-                .is_some_and(|w| self.decider.escalates(w));
+                .worst_since_command
+                .is_some_and(|input| self.decider.escalates(&input));
             if command_slot.due(now) || escalation {
                 self.send_command(&mut s, now);
             }
@@ -196,7 +201,7 @@ impl<B: CanBus> ControlThread<B> {
                 self.send_status(&mut s, now);
             }
             if obstacle_slot.due(now) {
-                let msg = ObstacleEstimate::to_msg(s.latest.and_then(|l| l.obstacle));
+                let msg = s.latest.map_or(ObstacleMsg::NONE, |l| l.obstacle_msg());
                 let r = self.tx.send_obstacle(&msg);
                 self.sent(&mut s, r, "FLYD_Obstacle");
                 s.report.obstacles_sent += 1;
@@ -251,11 +256,10 @@ impl<B: CanBus> ControlThread<B> {
         if snapshot.warming_up {
             return;
         }
-        let d = snapshot.global_warning;
-        s.warning_since_command = Some(match s.warning_since_command {
-            Some(m) if m.is_nan() || d.is_nan() => f64::NAN,
-            Some(m) => m.max(d),
-            None => d,
+        let input = self.input_of(&snapshot);
+        s.worst_since_command = Some(match s.worst_since_command {
+            Some(worst) => worst.worst(input),
+            None => input,
         });
         if !s.report.reached_running {
             s.report.reached_running = true;
@@ -317,16 +321,34 @@ impl<B: CanBus> ControlThread<B> {
         }
     }
 
+    /// What `snapshot` tells the decider (faults are added when the command is decided).
+    fn input_of(&self, snapshot: &Snapshot) -> DecisionInput {
+        DecisionInput {
+            global_warning: snapshot.global_warning,
+            ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed)
+        }
+    }
+
     fn send_command(&mut self, s: &mut Loop, now: Duration) {
-        let warning = s
-            .warning_since_command
+        // No trusted snapshot yet: an input that cannot be true in either mode (a fault).
+        let untrusted = DecisionInput {
+            global_warning: f64::NAN,
+            ..DecisionInput::at_speed(None, f64::NAN)
+        };
+        let input = s
+            .worst_since_command
             .take()
-            .or_else(|| s.latest.filter(|l| !l.warming_up).map(|l| l.global_warning))
-            .unwrap_or(f64::NAN);
+            .or_else(|| {
+                s.latest
+                    .filter(|l| !l.warming_up)
+                    .map(|l| self.input_of(&l))
+            })
+            .unwrap_or(untrusted);
+        let warning = input.global_warning;
         let decision = self.decider.update(
             DecisionInput {
-                global_warning: warning,
                 faults: s.faults,
+                ..input
             },
             now,
         );
@@ -338,7 +360,9 @@ impl<B: CanBus> ControlThread<B> {
                 reason = %decision.reason,
                 global_warning = warning,
                 faults = %s.faults,
-                obstacle_m = s.latest.and_then(|l| l.obstacle).map(|o| o.distance),
+                obstacle_m = input.obstacle,
+                speed_kmh = input.speed * 3.6,
+                road = %s.latest.map_or(RoadSource::Prior, |l| l.road.source),
                 "decision changed"
             );
         }
@@ -424,7 +448,14 @@ impl<B: CanBus> ControlThread<B> {
             global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
             matched = latest.map_or(f64::NAN, |l| l.matched),
             perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
-            obstacle_m = latest.and_then(|l| l.obstacle).map(|o| o.distance),
+            obstacle_m = latest.and_then(|l| l.tracked.obstacle).map(|o| o.distance),
+            obstacle_confirmed = latest.is_some_and(|l| l.tracked.confirmed),
+            obstacle_flies = latest.and_then(|l| l.tracked.obstacle).map(|o| o.flies),
+            corridor_unique = latest.map(|l| l.corridor.unique),
+            road = %latest.map_or(RoadSource::Prior, |l| l.road.source),
+            road_height_m = latest.map(|l| l.road.plane.height),
+            road_pitch_deg = latest.map(|l| l.road.plane.pitch_deg()),
+            road_roll_deg = latest.map(|l| l.road.plane.roll_deg()),
             decision = %s.command,
             state = %s.state,
             faults = %s.faults,

@@ -3,8 +3,10 @@
 //! Each turn: fetch each camera's newest frame from its ring and offer it to the [`Pairer`];
 //! on a pair, swap both images into the engine's [`StereoFrame`] (zero copy) under a new id, so
 //! the engine re-evaluates the whole population; run one generation (on the newest pair, new or
-//! not: the population keeps converging between frames, as in the paper); estimate the nearest
-//! obstacle; `try_send` the snapshot (a full channel drops it and counts it: this thread never
+//! not: the population keeps converging between frames, as in the paper) of both engines,
+//! then the perception stages (on a new pair the road is measured; the obstacle stage runs every
+//! `perception.estimate_every` generations and on each new pair; see
+//! [`flyd_core::perception`]); `try_send` the snapshot (a full channel drops it and counts it: this thread never
 //! blocks on the control thread). Then wait for the next period (`generation_period`), or go on
 //! at once when it is unset, or when a camera publishes a frame meanwhile (checked every
 //! millisecond: one atomic load per ring), or while a burst lasts: a new pair that shows a change (the
@@ -13,8 +15,8 @@
 //! paper's 10-30 generations would otherwise be 100-300 ms). A static scene costs no burst.
 //! A turn longer than `max_generation_time` is flagged as an overrun.
 //!
-//! Allocation happens only at start: the engine, the two images of the stereo frame, the
-//! estimator's scratch.
+//! Allocation happens only at start: the engines, the two images of the stereo frame, the
+//! perception stages' buffers.
 
 use flyd_core::chain::Chain;
 use std::sync::Arc;
@@ -26,12 +28,13 @@ use crossbeam_channel::{Sender, TrySendError};
 use super::clock::SharedClock;
 use super::pairer::{PairOutcome, Pairer, Side};
 use super::ring::FrameReader;
-use super::snapshot::{ObstacleEstimator, Snapshot};
+use super::snapshot::Snapshot;
 use super::threads::Shutdown;
 use crate::config::EvolutionConfig;
 use crate::source::FrameMeta;
-use flyd_core::engine::{Engine, EngineError};
+use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
+use flyd_core::perception::{Perception, RoadEstimate, RoadSource};
 
 /// Counters the control thread reads (statistics, `Relaxed`).
 #[derive(Debug, Default)]
@@ -44,25 +47,23 @@ pub struct EvolutionCounters {
 }
 
 pub struct EvolutionThread {
-    pub engine: Engine,
+    pub perception: Perception,
     pub left: FrameReader,
     pub right: FrameReader,
     pub pairer: Pairer,
     /// The engine's input; its images are swapped with the rings' slots.
     pub stereo: StereoFrame,
-    pub estimator: ObstacleEstimator,
     pub snapshots: Sender<Snapshot>,
     pub counters: Arc<EvolutionCounters>,
     pub clock: SharedClock,
     pub config: EvolutionConfig,
     pub stop: Shutdown,
+    /// The road estimate's source at the last new pair (its changes are logged).
+    pub road_source: Option<RoadSource>,
 }
 
 /// Granularity of the wait for a new frame between generations.
 const FRAME_POLL: Duration = Duration::from_millis(1);
-
-/// Generations between two nearest-obstacle estimates (besides one on every new pair).
-const ESTIMATE_EVERY: u64 = 4;
 
 /// How long to wait for the first pair before looking again.
 const IDLE_WAIT: Duration = Duration::from_millis(1);
@@ -73,7 +74,6 @@ impl EvolutionThread {
         let mut next_turn: Option<Duration> = None;
         // Generations of the current burst still to run back to back.
         let mut burst: u32 = 0;
-        let mut obstacle = None;
         // Consecutive new pairs on which the population matched nowhere.
         let mut blind_pairs: u32 = 0;
         while !self.stop.is_requested() {
@@ -85,14 +85,12 @@ impl EvolutionThread {
                 continue;
             };
             let started = self.clock.now();
-            let stats = self.engine.step(&self.stereo).inspect_err(|e| {
+            let report = *self.perception.step(&self.stereo).inspect_err(|e| {
                 tracing::error!(error = %Chain(e), "generation failed: evolution stops (SNAPSHOT_STALE)");
             })?;
-            // The obstacle frame goes out every 100 ms: estimating on each new pair and every
-            // ESTIMATE_EVERY-th generation keeps it fresh at a fraction of the cost (a selection
-            // over the in-lane flies, thousands with a pedestrian ahead).
-            if stats.new_frame || stats.generation % ESTIMATE_EVERY == 0 {
-                obstacle = self.estimator.estimate(self.engine.population());
+            let stats = report.stats;
+            if stats.new_frame {
+                self.log_road(&report.road);
             }
             let finished = self.clock.now();
             let generation_time = finished.saturating_sub(started);
@@ -134,7 +132,9 @@ impl EvolutionThread {
                 blind,
                 visible: stats.visible,
                 new_frame: stats.new_frame,
-                obstacle,
+                road: report.road,
+                tracked: report.tracked,
+                corridor: report.corridor,
                 generation_time,
                 overrun,
                 left,
@@ -174,6 +174,40 @@ impl EvolutionThread {
             }
         }
         Ok(())
+    }
+
+    /// Logs the road estimate when its source changes (a fallback to the prior, a return to
+    /// measurement) and, at debug level, on every new pair.
+    fn log_road(&mut self, road: &RoadEstimate) {
+        let p = road.plane;
+        if self.road_source != Some(road.source) {
+            if road.measured() {
+                tracing::info!(
+                    source = %road.source,
+                    height_m = p.height,
+                    pitch_deg = p.pitch_deg(),
+                    roll_deg = p.roll_deg(),
+                    inliers = road.inliers,
+                    "road measured"
+                );
+            } else {
+                tracing::warn!(
+                    source = %road.source,
+                    inliers = road.inliers,
+                    "road not measured: heights are taken from the calibration's mount (the prior)"
+                );
+            }
+            self.road_source = Some(road.source);
+        }
+        tracing::debug!(
+            source = %road.source,
+            height_m = p.height,
+            pitch_deg = p.pitch_deg(),
+            roll_deg = p.roll_deg(),
+            inliers = road.inliers,
+            rms_m = road.rms,
+            "road"
+        );
     }
 
     /// Sleeps up to `wait`, in slices of at most [`FRAME_POLL`], until either camera publishes

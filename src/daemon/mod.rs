@@ -54,7 +54,7 @@ pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
 pub use clock::{MonotonicClock, SharedClock};
 pub use control::ControlReport;
 pub use hardware::Cameras;
-pub use snapshot::{ObstacleEstimate, Snapshot};
+pub use snapshot::Snapshot;
 pub use threads::{Shutdown, spawn_named};
 
 use crate::config::{ConfigError, DaemonConfig};
@@ -65,12 +65,12 @@ use faults::{FaultConfig, FaultMonitor};
 use flyd_core::can::bus::CanBus;
 use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::decision::{Decider, DecisionConfigError};
-use flyd_core::engine::{Engine, EngineError};
+use flyd_core::engine::EngineError;
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::perception::{Perception, PerceptionError};
 use notify::ServiceNotifier;
 use pairer::{Pairer, Side};
 use ring::frame_ring;
-use snapshot::ObstacleEstimator;
 
 /// Why the daemon could not start (runtime faults are not errors: see the module docs).
 #[derive(Debug, Error)]
@@ -79,6 +79,8 @@ pub enum DaemonError {
     Config(#[from] ConfigError),
     #[error("engine")]
     Engine(#[from] EngineError),
+    #[error("perception")]
+    Perception(#[from] PerceptionError),
     #[error(
         "camera {camera} delivers {got_w}x{got_h} but the configuration says {want_w}x{want_h}"
     )]
@@ -192,7 +194,8 @@ pub fn run(
             });
         }
     }
-    let engine = Engine::new(&rig, config.engine.clone())?;
+    let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
+        .with_warmup(config.evolution.warmup_generations);
     let decider = Decider::new(config.decision)?;
     let tx = Transmitter::new(bus, config.can.messages)?;
     let (left_writer, left_reader) = frame_ring(width, height)?;
@@ -250,24 +253,18 @@ pub fn run(
         threads.captures.push((name, handle));
     }
 
-    let population = config.engine.flies;
     let evolution = EvolutionThread {
-        engine,
+        perception,
         left: left_reader,
         right: right_reader,
         pairer: Pairer::new(config.cameras.timestamp_tolerance),
         stereo,
-        estimator: ObstacleEstimator::new(
-            population,
-            config.evolution.lane_half_width,
-            config.evolution.obstacle_best_flies,
-            config.evolution.obstacle_min_flies,
-        ),
         snapshots: snapshot_tx,
         counters: evolution_counters.clone(),
         clock: clock.clone(),
         config: config.evolution,
         stop: stop.clone(),
+        road_source: None,
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
@@ -298,6 +295,7 @@ pub fn run(
             evolution: evolution_counters.clone(),
         },
         clock: clock.clone(),
+        speed: config.vehicle.assumed_speed,
         can: config.can.messages,
         stats_interval: config.logging.stats_interval,
         shutdown: shutdown.clone(),

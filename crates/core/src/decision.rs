@@ -1,31 +1,46 @@
-//! From global warning to CLEAR / SLOW / STOP: a pure state machine.
+//! From perception to CLEAR / SLOW / STOP: a pure state machine.
 //!
 //! No clock, no I/O: the caller passes the monotonic time of each snapshot, so every behaviour
 //! is reproducible in a test.
 //!
-//! # Rules
-//! Let `w` be the global warning (dimensionless danger, the mean fly warning; larger = more
-//! dangerous) and its *level* be STOP if `w >= stop_threshold`, SLOW if `w >= slow_threshold`,
-//! else CLEAR.
+//! # What the command is decided on ([`DecisionMode`])
+//! - **`obstacle`** (default): the confirmed nearest obstacle in the corridor
+//!   ([`crate::perception`]), at distance `d` metres, and the vehicle's speed `v` (m/s). A
+//!   command's *reach* is the distance the vehicle needs to stop with that command's
+//!   deceleration: `v reaction_time + v^2 / (2 decel) + margin` (Autoware's AEB and RSS use the
+//!   same form). The level is STOP if `d <= reach(STOP)`, SLOW if `d <= reach(SLOW)`, else
+//!   CLEAR; no obstacle is CLEAR. At 30 km/h with the defaults (0.5 s, 2 m, 4 and 1.5 m/s^2):
+//!   STOP within 14.9 m, SLOW within 29.3 m.
+//! - **`global-warning`**: the paper's rule. `w` the global warning (the mean fly warning),
+//!   STOP if `w >= stop_threshold`, SLOW if `w >= slow_threshold`. Its scale follows the images'
+//!   gradients and textures: thresholds written in it carry over from no camera or scene to
+//!   another (0.002-0.01 on real KITTI roads, 0.06 on hw-mock's empty road).
 //!
+//! Both are a ratio per command, `reach / d` or `w / threshold`: the command's level is asked
+//! when its ratio is at least 1, and the ratio must fall below `release_ratio` to release it.
+//!
+//! # Rules
 //! 1. **Escalation is immediate**: a level above the current command becomes the command at once.
-//! 2. **Release needs time** (hysteresis + hold): STOP is left only once `w` has stayed below
-//!    `stop_threshold * release_ratio` *continuously* for `stop_hold`, with perception healthy
-//!    throughout; SLOW likewise with `slow_threshold * release_ratio` and `slow_hold`. Both holds
-//!    must be > 0, so one good snapshot never releases anything. The steps are evaluated
-//!    together: after a long calm, STOP may go straight to CLEAR.
-//! 3. **Faults fail safe**: when any fault bit in `fault_mask` is set, or `w` is NaN, infinite or
-//!    negative (it cannot be a mean of warnings, so the perception output is not trustworthy),
-//!    the command becomes `max(current, safe_command)`: a STOP is never downgraded by a fault.
-//!    A finite warning during a fault may still raise the command, never lower it. Snapshots
-//!    taken during a fault do not count towards a hold: after recovery the holds start again.
+//! 2. **Release needs time** (hysteresis + hold): STOP is left only once its ratio has stayed
+//!    below `release_ratio` *continuously* for `stop_hold` (an obstacle beyond
+//!    `reach / release_ratio`, a warning below `threshold * release_ratio`), with perception
+//!    healthy throughout; SLOW likewise for `slow_hold`. Both holds must be > 0, so one good
+//!    snapshot never releases anything. The steps are evaluated together: after a long calm,
+//!    STOP may go straight to CLEAR.
+//! 3. **Faults fail safe**: when any fault bit in `fault_mask` is set, or the input cannot be
+//!    true (a warning NaN, infinite or negative; an obstacle distance or a speed NaN or
+//!    negative), the command becomes `max(current, safe_command)`: a STOP is never downgraded
+//!    by a fault. A valid input during a fault may still raise the command, never lower it.
+//!    Snapshots taken during a fault do not count towards a hold: after recovery the holds
+//!    start again.
 //! 4. **Start-up is a fault**: before the first healthy snapshots there is no evidence that the
 //!    road is clear, so the decider starts at `safe_command` (reason FAULT_FALLBACK) and reaches
 //!    CLEAR only through rule 2.
 //! 5. **Shutdown** latches `max(current, safe_command)` with reason SHUTDOWN.
 //!
-//! The reason is PERCEPTION when the warning alone justifies the command, FAULT_FALLBACK while a
-//! fault is active or while a command entered because of one is still held, SHUTDOWN at the end.
+//! The reason is PERCEPTION when the perception output alone justifies the command,
+//! FAULT_FALLBACK while a fault is active or while a command entered because of one is still
+//! held, SHUTDOWN at the end.
 
 use std::time::Duration;
 
@@ -49,7 +64,7 @@ named_enum! {
 named_enum! {
     /// Why the current command is what it is.
     pub enum CommandReason {
-        /// The perception output (global warning) alone justifies the command.
+        /// The perception output alone justifies the command.
         Perception = 0 => "PERCEPTION",
         /// Perception is not trusted (fault, invalid warning, not yet started), or the command is
         /// still held from such a period: the command is the configured safe fallback or higher.
@@ -59,33 +74,49 @@ named_enum! {
     }
 }
 
-/// Tuning of the [`Decider`]. The defaults are placeholders until tuned on the vehicle: the
-/// warning scale depends on the perception settings.
+named_enum! {
+    /// What the command is decided on (see the module docs).
+    pub enum DecisionMode {
+        /// The confirmed nearest obstacle against the stopping distance at the vehicle's speed.
+        Obstacle = 0 => "obstacle",
+        /// The paper's global warning against thresholds.
+        GlobalWarning = 1 => "global-warning",
+    }
+}
+
+/// Tuning of the [`Decider`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DecisionConfig {
-    /// Warning at or above which SLOW is commanded.
+    pub mode: DecisionMode,
+    /// `global-warning` mode: warning at or above which SLOW is commanded.
     pub slow_threshold: f64,
-    /// Warning at or above which STOP is commanded.
+    /// `global-warning` mode: warning at or above which STOP is commanded.
     pub stop_threshold: f64,
-    /// Release level = threshold × ratio, in (0, 1]: the gap is the hysteresis.
+    /// A command is released once its ratio (see the module docs) stays below this, in (0, 1]:
+    /// the gap is the hysteresis.
     pub release_ratio: f64,
-    /// How long the warning must stay below the SLOW release level before SLOW is released.
+    /// How long SLOW's ratio must stay below `release_ratio` before SLOW is released.
     pub slow_hold: Duration,
-    /// How long the warning must stay below the STOP release level before STOP is released.
+    /// How long STOP's ratio must stay below `release_ratio` before STOP is released.
     pub stop_hold: Duration,
     /// Command while perception is faulty: SLOW or STOP (never CLEAR).
     pub safe_command: Command,
     /// Fault bits that make perception untrusted (default: all).
     pub fault_mask: FaultBits,
-    /// Requested deceleration for SLOW, m/s².
+    /// Requested deceleration for SLOW, m/s² (and the one its reach assumes).
     pub slow_decel: f64,
     /// Requested deceleration for STOP, m/s².
     pub stop_decel: f64,
+    /// `obstacle` mode: time from the obstacle's evidence to the brakes acting, s.
+    pub reaction_time: Duration,
+    /// `obstacle` mode: distance kept to the obstacle once stopped, m.
+    pub margin: f64,
 }
 
 impl Default for DecisionConfig {
     fn default() -> Self {
         Self {
+            mode: DecisionMode::Obstacle,
             slow_threshold: 0.5,
             stop_threshold: 1.5,
             release_ratio: 0.8,
@@ -95,6 +126,8 @@ impl Default for DecisionConfig {
             fault_mask: FaultBits::all(),
             slow_decel: 1.5,
             stop_decel: 4.0,
+            reaction_time: Duration::from_millis(500),
+            margin: 2.0,
         }
     }
 }
@@ -110,8 +143,12 @@ pub enum DecisionConfigError {
     ZeroHold,
     #[error("safe_command must be SLOW or STOP")]
     UnsafeFallback,
-    #[error("deceleration for {command} must be finite and >= 0, got {value}")]
+    #[error("deceleration for {command} must be finite and > 0, got {value}")]
     Decel { command: Command, value: f64 },
+    #[error("the stopping distance needs SLOW's deceleration ({slow}) <= STOP's ({stop})")]
+    DecelOrder { slow: f64, stop: f64 },
+    #[error("margin must be finite and >= 0, got {0}")]
+    Margin(f64),
 }
 
 impl DecisionConfig {
@@ -133,9 +170,18 @@ impl DecisionConfig {
             (Command::Slow, self.slow_decel),
             (Command::Stop, self.stop_decel),
         ] {
-            if !(value.is_finite() && value >= 0.0) {
+            if !(value.is_finite() && value > 0.0) {
                 return Err(DecisionConfigError::Decel { command, value });
             }
+        }
+        if self.slow_decel > self.stop_decel {
+            return Err(DecisionConfigError::DecelOrder {
+                slow: self.slow_decel,
+                stop: self.stop_decel,
+            });
+        }
+        if !(self.margin.is_finite() && self.margin >= 0.0) {
+            return Err(DecisionConfigError::Margin(self.margin));
         }
         Ok(())
     }
@@ -148,22 +194,80 @@ impl DecisionConfig {
             Command::Stop => self.stop_decel,
         }
     }
+
+    /// `obstacle` mode: the distance within which an obstacle asks for `command` (SLOW or
+    /// STOP) at `speed` m/s: `v reaction_time + v^2 / (2 decel) + margin`, metres.
+    pub fn reach(&self, command: Command, speed: f64) -> f64 {
+        let decel = self.decel_for(command);
+        if decel <= 0.0 {
+            return 0.0;
+        }
+        speed * self.reaction_time.as_secs_f64() + speed * speed / (2.0 * decel) + self.margin
+    }
 }
 
 /// One perception snapshot as the decider sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DecisionInput {
-    /// The global warning; NaN, ±inf and negative values count as a fault.
+    /// The global warning (`global-warning` mode; NaN, ±inf and negative values count as a
+    /// fault there).
     pub global_warning: f64,
+    /// The confirmed nearest obstacle's distance, metres (`obstacle` mode; NaN or negative is
+    /// a fault there).
+    pub obstacle: Option<f64>,
+    /// The vehicle's speed, m/s (`obstacle` mode; NaN or negative is a fault there).
+    pub speed: f64,
     /// Active faults; those in [`DecisionConfig::fault_mask`] make perception untrusted.
     pub faults: FaultBits,
 }
 
 impl DecisionInput {
+    /// A healthy snapshot of global warning `global_warning`, no obstacle, at standstill.
     pub fn healthy(global_warning: f64) -> Self {
         Self {
             global_warning,
+            obstacle: None,
+            speed: 0.0,
             faults: FaultBits::empty(),
+        }
+    }
+
+    /// A healthy snapshot with the confirmed obstacle at `distance` (if any) at `speed` m/s.
+    pub fn at_speed(obstacle: Option<f64>, speed: f64) -> Self {
+        Self {
+            obstacle,
+            speed,
+            ..Self::healthy(0.0)
+        }
+    }
+
+    /// The more alarming of two snapshots taken between two commands (so that none is lost):
+    /// the higher warning, the nearer obstacle, the higher speed, every fault; an invalid
+    /// value of either stays (it is a fault).
+    pub fn worst(self, other: Self) -> Self {
+        let invalid = |v: f64| !(v.is_finite() && v >= 0.0);
+        let high = |a: f64, b: f64| {
+            if invalid(a) {
+                a
+            } else if invalid(b) {
+                b
+            } else {
+                a.max(b)
+            }
+        };
+        let obstacle = match (self.obstacle, other.obstacle) {
+            (Some(a), Some(b)) => Some(if a.is_nan() || b.is_nan() || a < 0.0 || b < 0.0 {
+                f64::NAN
+            } else {
+                a.min(b)
+            }),
+            (a, b) => a.or(b),
+        };
+        Self {
+            global_warning: high(self.global_warning, other.global_warning),
+            obstacle,
+            speed: high(self.speed, other.speed),
+            faults: self.faults | other.faults,
         }
     }
 }
@@ -183,15 +287,22 @@ pub struct Decision {
     pub fault: bool,
 }
 
+/// Per command, how far into its level the input is: asked at >= 1 (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Ratios {
+    slow: f64,
+    stop: f64,
+}
+
 /// The state machine; see the module docs for the rules.
 #[derive(Debug, Clone)]
 pub struct Decider {
     config: DecisionConfig,
     command: Command,
     reason: CommandReason,
-    /// Since when (healthy snapshots only) the warning is below the SLOW release level.
+    /// Since when (healthy snapshots only) SLOW's ratio is below the release ratio.
     below_slow_release_since: Option<Duration>,
-    /// Since when (healthy snapshots only) the warning is below the STOP release level.
+    /// Since when (healthy snapshots only) STOP's ratio is below the release ratio.
     below_stop_release_since: Option<Duration>,
     shut_down: bool,
 }
@@ -218,10 +329,10 @@ impl Decider {
         self.command
     }
 
-    /// Whether a healthy warning `w` asks for more than the current command (an escalation,
-    /// which the control thread sends at once instead of at the next period).
-    pub fn escalates(&self, w: f64) -> bool {
-        !self.shut_down && w.is_finite() && w >= 0.0 && self.level(w) > self.command
+    /// Whether a valid `input` asks for more than the current command (an escalation, which
+    /// the control thread sends at once instead of at the next period).
+    pub fn escalates(&self, input: &DecisionInput) -> bool {
+        !self.shut_down && self.ratios(input).is_some_and(|r| level(r) > self.command)
     }
 
     /// Feeds one snapshot taken at monotonic time `now`. Times must not go backwards; if they
@@ -232,30 +343,19 @@ impl Decider {
             return self.decision(previous, false);
         }
         let cfg = self.config;
-        let w = input.global_warning;
-        let warning_valid = w.is_finite() && w >= 0.0;
-        let fault = !warning_valid || input.faults.intersects(cfg.fault_mask);
-        let level = if warning_valid {
-            self.level(w)
-        } else {
-            Command::Clear
-        };
+        let ratios = self.ratios(&input);
+        let fault = ratios.is_none() || input.faults.intersects(cfg.fault_mask);
+        let level = ratios.map_or(Command::Clear, level);
 
-        if fault {
-            // Untrusted snapshots are no evidence of a clear road: holds restart after recovery.
-            self.below_slow_release_since = None;
-            self.below_stop_release_since = None;
-            self.command = self.command.max(cfg.safe_command).max(level);
-            self.reason = CommandReason::FaultFallback;
-        } else {
+        if let (false, Some(r)) = (fault, ratios) {
             Self::track(
                 &mut self.below_stop_release_since,
-                w < cfg.stop_threshold * cfg.release_ratio,
+                r.stop < cfg.release_ratio,
                 now,
             );
             Self::track(
                 &mut self.below_slow_release_since,
-                w < cfg.slow_threshold * cfg.release_ratio,
+                r.slow < cfg.release_ratio,
                 now,
             );
             let mut command = self.command.max(level);
@@ -269,15 +369,21 @@ impl Decider {
             {
                 command = Command::Clear;
             }
-            // Release levels are below the thresholds, so this cannot bite; it states the
-            // invariant that a release never undercuts what the warning asks for.
+            // Release levels are below the levels, so this cannot bite; it states the
+            // invariant that a release never undercuts what the input asks for.
             command = command.max(level);
             self.command = command;
             if level >= command {
                 self.reason = CommandReason::Perception;
             }
-            // Otherwise the command is held above the warning's level: keep the reason that
+            // Otherwise the command is held above the input's level: keep the reason that
             // brought it there (hysteresis after PERCEPTION, hold after FAULT_FALLBACK).
+        } else {
+            // Untrusted snapshots are no evidence of a clear road: holds restart after recovery.
+            self.below_slow_release_since = None;
+            self.below_stop_release_since = None;
+            self.command = self.command.max(cfg.safe_command).max(level);
+            self.reason = CommandReason::FaultFallback;
         }
         self.decision(previous, fault)
     }
@@ -292,13 +398,48 @@ impl Decider {
         self.decision(previous, false)
     }
 
-    fn level(&self, w: f64) -> Command {
-        if w >= self.config.stop_threshold {
-            Command::Stop
-        } else if w >= self.config.slow_threshold {
-            Command::Slow
-        } else {
-            Command::Clear
+    /// What `input` asks for, whatever the current command: the level of the mode's ratios
+    /// (CLEAR for an input that cannot be true).
+    pub fn level(&self, input: &DecisionInput) -> Command {
+        self.ratios(input).map_or(Command::Clear, level)
+    }
+
+    /// The mode's ratios, `None` for an input that cannot be true.
+    fn ratios(&self, input: &DecisionInput) -> Option<Ratios> {
+        let c = &self.config;
+        let valid = |v: f64| v.is_finite() && v >= 0.0;
+        match c.mode {
+            DecisionMode::GlobalWarning => {
+                let w = input.global_warning;
+                valid(w).then(|| Ratios {
+                    slow: w / c.slow_threshold,
+                    stop: w / c.stop_threshold,
+                })
+            }
+            DecisionMode::Obstacle => {
+                let v = input.speed;
+                if !valid(v) {
+                    return None;
+                }
+                match input.obstacle {
+                    None => Some(Ratios {
+                        slow: 0.0,
+                        stop: 0.0,
+                    }),
+                    // +inf is a valid "nothing within range".
+                    Some(d) if d.is_nan() || d < 0.0 => None,
+                    Some(d) => {
+                        let ratio = |command| {
+                            let reach = c.reach(command, v);
+                            if d > 0.0 { reach / d } else { f64::INFINITY }
+                        };
+                        Some(Ratios {
+                            slow: ratio(Command::Slow),
+                            stop: ratio(Command::Stop),
+                        })
+                    }
+                }
+            }
         }
     }
 
@@ -326,6 +467,17 @@ impl Decider {
     }
 }
 
+/// The level of `r`: STOP if its STOP ratio is at least 1, SLOW if its SLOW one is.
+fn level(r: Ratios) -> Command {
+    if r.stop >= 1.0 {
+        Command::Stop
+    } else if r.slow >= 1.0 {
+        Command::Slow
+    } else {
+        Command::Clear
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -346,6 +498,8 @@ mod tests {
             fault_mask: FaultBits::all(),
             slow_decel: 1.5,
             stop_decel: 4.0,
+            mode: DecisionMode::GlobalWarning,
+            ..DecisionConfig::default()
         }
     }
 
@@ -363,8 +517,8 @@ mod tests {
             .map(|&(ms, w, faults)| {
                 decider.update(
                     DecisionInput {
-                        global_warning: w,
                         faults,
+                        ..DecisionInput::healthy(w)
                     },
                     Duration::from_millis(ms),
                 )
@@ -431,22 +585,33 @@ mod tests {
         let mut d = Decider::new(cfg()).expect("valid");
         let ms = Duration::from_millis;
         // Start-up SLOW: only a STOP-level warning escalates.
-        assert!(!d.escalates(0.4) && d.escalates(0.6));
+        assert!(
+            !d.escalates(&DecisionInput::healthy(0.4)) && d.escalates(&DecisionInput::healthy(0.6))
+        );
         for t in [0, 100, 200] {
             d.update(DecisionInput::healthy(0.0), ms(t));
         }
         assert_eq!(d.command(), Clear);
-        assert!(!d.escalates(0.29), "below SLOW");
-        assert!(d.escalates(0.3) && d.escalates(5.0));
+        assert!(!d.escalates(&DecisionInput::healthy(0.29)), "below SLOW");
         assert!(
-            !d.escalates(f64::NAN) && !d.escalates(-1.0),
+            d.escalates(&DecisionInput::healthy(0.3)) && d.escalates(&DecisionInput::healthy(5.0))
+        );
+        assert!(
+            !d.escalates(&DecisionInput::healthy(f64::NAN))
+                && !d.escalates(&DecisionInput::healthy(-1.0)),
             "faults are not escalations"
         );
         d.update(DecisionInput::healthy(0.7), ms(300));
         assert_eq!(d.command(), Stop);
-        assert!(!d.escalates(9.0), "nothing above STOP");
+        assert!(
+            !d.escalates(&DecisionInput::healthy(9.0)),
+            "nothing above STOP"
+        );
         d.shutdown();
-        assert!(!d.escalates(9.0), "latched after shutdown");
+        assert!(
+            !d.escalates(&DecisionInput::healthy(9.0)),
+            "latched after shutdown"
+        );
     }
 
     #[test]
@@ -725,6 +890,14 @@ mod tests {
                 stop_decel: -1.0,
                 ..cfg()
             },
+            DecisionConfig {
+                slow_decel: 5.0,
+                ..cfg()
+            },
+            DecisionConfig {
+                margin: f64::NAN,
+                ..cfg()
+            },
         ];
         for config in bad {
             assert!(Decider::new(config).is_err(), "{config:?}");
@@ -759,8 +932,8 @@ mod tests {
                 NONE
             };
             let input = DecisionInput {
-                global_warning: w,
                 faults,
+                ..DecisionInput::healthy(w)
             };
             let d = decider.update(input, t);
             let fault = !faults.is_empty();
@@ -769,7 +942,7 @@ mod tests {
             if fault {
                 assert!(d.command >= config.safe_command, "fault at {t:?}");
             } else {
-                assert!(d.command >= decider.level(w), "below level at {t:?}");
+                assert!(d.command >= decider.level(&input), "below level at {t:?}");
             }
             for (released, threshold, hold) in [
                 (Stop, config.stop_threshold, config.stop_hold),
@@ -793,5 +966,121 @@ mod tests {
             }
             previous = d.command;
         }
+    }
+
+    /// 30 km/h in m/s.
+    const KMH30: f64 = 30.0 / 3.6;
+
+    #[test]
+    fn stopping_distances_at_30_kmh() {
+        let c = DecisionConfig::default();
+        // 8.33 * 0.5 + 8.33^2 / 8 + 2 = 14.85 m; with 1.5 m/s^2, 29.31 m.
+        assert!((c.reach(Stop, KMH30) - 14.8472).abs() < 1e-3);
+        assert!((c.reach(Slow, KMH30) - 29.3148).abs() < 1e-3);
+        assert_eq!(c.reach(Stop, 0.0), c.margin);
+        assert_eq!(c.reach(Clear, KMH30), 0.0);
+    }
+
+    /// Runs (ms, obstacle distance) at 30 km/h through an obstacle-mode decider, warmed up
+    /// with no obstacle for the default holds, and returns the commands.
+    fn obstacle_run(steps: &[(u64, Option<f64>)]) -> Vec<Command> {
+        let mut d = Decider::new(DecisionConfig::default()).expect("valid");
+        let ms = Duration::from_millis;
+        for t in (0..=600).step_by(100) {
+            d.update(DecisionInput::at_speed(None, KMH30), ms(t));
+        }
+        assert_eq!(d.command(), Clear);
+        steps
+            .iter()
+            .map(|&(t, o)| {
+                d.update(DecisionInput::at_speed(o, KMH30), ms(1000 + t))
+                    .command
+            })
+            .collect()
+    }
+
+    #[test]
+    fn an_obstacle_within_the_stopping_distance_stops() {
+        let commands = obstacle_run(&[
+            (0, Some(40.0)),
+            (100, Some(29.0)),
+            (200, Some(14.8)),
+            (300, Some(14.0)),
+            // Beyond STOP's reach / release_ratio = 18.6 m for the 1 s hold: SLOW.
+            (1200, Some(19.0)),
+            (2199, Some(19.0)),
+            (2300, Some(19.0)),
+            // Beyond SLOW's reach / 0.8 = 36.6 m for 0.5 s: CLEAR.
+            (2400, Some(37.0)),
+            (2950, Some(37.0)),
+        ]);
+        assert_eq!(
+            commands,
+            [Clear, Slow, Stop, Stop, Stop, Stop, Slow, Slow, Clear]
+        );
+    }
+
+    #[test]
+    fn at_standstill_only_the_margin_counts() {
+        let mut d = Decider::new(DecisionConfig::default()).expect("valid");
+        let at = |o| DecisionInput::at_speed(o, 0.0);
+        assert!(d.escalates(&at(Some(1.9))), "inside the 2 m margin");
+        d.update(at(None), Duration::ZERO);
+        assert_eq!(d.level(&at(Some(2.1))), Clear);
+        assert_eq!(d.level(&at(Some(2.0))), Stop);
+    }
+
+    #[test]
+    fn an_obstacle_or_speed_that_cannot_be_true_is_a_fault() {
+        let d = Decider::new(DecisionConfig::default()).expect("valid");
+        for input in [
+            DecisionInput::at_speed(Some(f64::NAN), KMH30),
+            DecisionInput::at_speed(Some(-1.0), KMH30),
+            DecisionInput::at_speed(None, f64::NAN),
+            DecisionInput::at_speed(None, -3.0),
+        ] {
+            let mut d = d.clone();
+            let out = d.update(input, Duration::ZERO);
+            assert!(out.fault && out.command == Slow, "{input:?}: {out:?}");
+        }
+        // The warning is not what this mode decides on: a NaN there is no fault.
+        let mut d = d.clone();
+        let input = DecisionInput {
+            global_warning: f64::NAN,
+            ..DecisionInput::at_speed(None, KMH30)
+        };
+        assert!(!d.update(input, Duration::ZERO).fault);
+    }
+
+    #[test]
+    fn the_worst_of_two_snapshots_keeps_the_nearest_obstacle() {
+        let a = DecisionInput {
+            global_warning: 0.2,
+            ..DecisionInput::at_speed(Some(12.0), 5.0)
+        };
+        let b = DecisionInput {
+            global_warning: 0.9,
+            faults: STALE,
+            ..DecisionInput::at_speed(Some(20.0), 6.0)
+        };
+        let w = a.worst(b);
+        assert_eq!(
+            (w.global_warning, w.obstacle, w.speed, w.faults),
+            (0.9, Some(12.0), 6.0, STALE)
+        );
+        assert_eq!(
+            a.worst(DecisionInput::at_speed(None, 5.0)).obstacle,
+            Some(12.0)
+        );
+        assert!(
+            a.worst(DecisionInput::at_speed(Some(f64::NAN), 5.0))
+                .obstacle
+                .is_some_and(f64::is_nan)
+        );
+        assert!(
+            a.worst(DecisionInput::healthy(f64::NAN))
+                .global_warning
+                .is_nan()
+        );
     }
 }

@@ -66,6 +66,7 @@ use thiserror::Error;
 
 use super::crc::e2e_crc;
 use crate::decision::{Command, CommandReason, Decision};
+use crate::perception::{RoadEstimate, Tracked};
 use crate::status::{FaultBits, State};
 
 /// Every flyd frame is classic CAN with 8 data bytes.
@@ -279,6 +280,10 @@ mod layout {
         pub const METRE_PER_UNIT: f64 = 100.0;
         pub const CONFIDENCE: Field = Field { start: 48, len: 8 };
         pub const CONFIDENCE_MAX: u64 = 100;
+        pub const CONFIRMED: Field = Field { start: 13, len: 1 };
+        pub const ROAD_MEASURED: Field = Field { start: 14, len: 1 };
+        pub const HEIGHT: Field = Field { start: 56, len: 8 };
+        pub const HEIGHT_PER_METRE: f64 = 50.0;
     }
 }
 
@@ -497,10 +502,11 @@ impl CanMessage for StatusMsg {
 }
 default_codec!(StatusMsg);
 
-/// `FLYD_Obstacle`: the most relevant obstacle, in the vehicle frame of [`crate::geometry`].
+/// `FLYD_Obstacle`: the nearest obstacle in the corridor, in the vehicle frame of
+/// [`crate::geometry`], and whether the road it stands on was measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ObstacleMsg {
-    /// `false`: no obstacle; the other fields are sent as 0 and must be ignored.
+    /// `false`: no obstacle; the obstacle's fields are sent as 0 and must be ignored.
     pub valid: bool,
     /// Forward distance (vehicle-frame z), m.
     pub distance: f64,
@@ -508,16 +514,46 @@ pub struct ObstacleMsg {
     pub lateral: f64,
     /// Confidence, percent (0..=100).
     pub confidence: f64,
+    /// Seen on enough consecutive frames: what the decision acts on.
+    pub confirmed: bool,
+    /// Height of the obstacle's top above the road, m.
+    pub height: f64,
+    /// The road was measured on the latest frame (else heights are from the calibration's
+    /// mount); sent with or without an obstacle.
+    pub road_measured: bool,
 }
 
 impl ObstacleMsg {
-    /// "No obstacle".
+    /// "No obstacle", road not measured.
     pub const NONE: Self = Self {
         valid: false,
         distance: 0.0,
         lateral: 0.0,
         confidence: 0.0,
+        confirmed: false,
+        height: 0.0,
+        road_measured: false,
     };
+
+    /// The message for perception's debounced obstacle and road.
+    pub fn of(tracked: &Tracked, road: &RoadEstimate) -> Self {
+        let base = Self {
+            road_measured: road.measured(),
+            ..Self::NONE
+        };
+        match tracked.obstacle {
+            Some(o) => Self {
+                valid: true,
+                distance: o.distance,
+                lateral: o.lateral,
+                confidence: o.confidence,
+                confirmed: tracked.confirmed,
+                height: o.top,
+                ..base
+            },
+            None => base,
+        }
+    }
 }
 
 impl CanMessage for ObstacleMsg {
@@ -545,7 +581,15 @@ impl CanMessage for ObstacleMsg {
                 &mut w,
                 to_raw_unsigned(self.confidence, 1.0, CONFIDENCE_MAX, 0),
             );
+            CONFIRMED.put(&mut w, u64::from(self.confirmed));
+            if self.height.is_finite() {
+                HEIGHT.put(
+                    &mut w,
+                    to_raw_unsigned(self.height, HEIGHT_PER_METRE, HEIGHT.max_unsigned(), 0),
+                );
+            }
         }
+        ROAD_MEASURED.put(&mut w, u64::from(self.road_measured));
         seal(w, counter, data_id)
     }
 
@@ -564,6 +608,9 @@ impl CanMessage for ObstacleMsg {
             distance: DISTANCE.get(w) as f64 / METRE_PER_UNIT,
             lateral: LATERAL.get_signed(w) as f64 / METRE_PER_UNIT,
             confidence: confidence as f64,
+            confirmed: CONFIRMED.get(w) == 1,
+            height: HEIGHT.get(w) as f64 / HEIGHT_PER_METRE,
+            road_measured: ROAD_MEASURED.get(w) == 1,
         };
         Ok((msg, counter))
     }
@@ -578,7 +625,11 @@ mod tests {
     fn command_msg_carries_the_decision() {
         use crate::decision::{Decider, DecisionConfig, DecisionInput};
         let mut decider = Decider::new(DecisionConfig::default()).expect("valid");
-        let d = decider.update(DecisionInput::healthy(9.0), Duration::ZERO);
+        let input = DecisionInput {
+            global_warning: 9.0,
+            ..DecisionInput::at_speed(Some(3.0), 30.0 / 3.6)
+        };
+        let d = decider.update(input, Duration::ZERO);
         let msg = CommandMsg::of(&d, 9.0);
         assert_eq!(
             (
@@ -656,8 +707,16 @@ mod tests {
             distance: 12.34,
             lateral: -1.5,
             confidence: 87.0,
+            confirmed: true,
+            height: 1.76,
+            road_measured: true,
         };
         assert_eq!(ObstacleMsg::decode(&obstacle.encode(c(0))), Ok(obstacle));
+        let road_only = ObstacleMsg {
+            road_measured: true,
+            ..ObstacleMsg::NONE
+        };
+        assert_eq!(ObstacleMsg::decode(&road_only.encode(c(2))), Ok(road_only));
         assert_eq!(
             ObstacleMsg::decode(&ObstacleMsg::NONE.encode(c(1))),
             Ok(ObstacleMsg::NONE)
@@ -734,8 +793,12 @@ mod tests {
             distance: 700.0,
             lateral: -400.0,
             confidence: 250.0,
+            confirmed: false,
+            height: 9.0,
+            road_measured: false,
         };
         let back = ObstacleMsg::decode(&far.encode(c(0))).expect("decodes");
+        assert_eq!(back.height, 5.1);
         assert_eq!(back.distance, 655.35);
         assert_eq!(back.lateral, -327.68);
         assert_eq!(back.confidence, 100.0);
@@ -767,6 +830,9 @@ mod tests {
                 distance: bad,
                 lateral: 0.0,
                 confidence: 50.0,
+                confirmed: true,
+                height: 1.7,
+                road_measured: false,
             };
             assert_eq!(
                 ObstacleMsg::decode(&msg.encode(c(2))),

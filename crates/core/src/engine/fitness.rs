@@ -91,6 +91,12 @@ impl<'a> Kernel<'a> {
     }
 
     /// The same kernel without the region of interest (every fly judged on its match alone).
+    /// Whether a compared fly's SSD (as [`Scratch::ssd`] gives it) counts as a match (see
+    /// [`Matches`]).
+    pub(crate) fn matches(&self, ssd: i32) -> bool {
+        ssd >= 0 && ssd as f32 <= self.match_ssd
+    }
+
     pub(crate) fn without_roi(self) -> Self {
         Self { roi: None, ..self }
     }
@@ -268,6 +274,12 @@ pub(crate) struct Scratch {
 }
 
 impl Scratch {
+    /// The SSD of the `i`-th fly of the latest evaluation (from its range's start), -1 for
+    /// one not compared.
+    pub(crate) fn ssd(&self, i: usize) -> i32 {
+        self.ssd.get(i).copied().unwrap_or(-1)
+    }
+
     /// Room for evaluating `flies` flies at once.
     pub(crate) fn new(flies: usize) -> Self {
         let n = flies;

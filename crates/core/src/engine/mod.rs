@@ -67,11 +67,13 @@ mod refresh;
 mod sampler;
 mod select;
 mod sharing;
+mod sweep;
 mod uniqueness;
 mod windows;
 
 pub use params::{EngineParams, ParamError, RoadRoi};
 pub use population::Population;
+pub use sweep::{Sweep, SweepPoint};
 pub use uniqueness::SHIFTS as AMBIGUITY_SHIFTS;
 
 use crate::frame::StereoFrame;
@@ -91,6 +93,7 @@ use refresh::Refresh;
 use sampler::Sampler;
 use select::Survival;
 use sharing::{Grid, Mates};
+use sweep::Sweeps;
 use uniqueness::Uniqueness;
 
 /// Why an engine cannot be built or run.
@@ -150,6 +153,8 @@ pub struct GenerationStats {
 
 /// Flies one [`Engine::ambiguity`] call looks at, at most.
 const AMBIGUITY_FLIES: usize = 512;
+/// Probes one [`Engine::sweep`] evaluates at once, at most.
+const SWEEP_POINTS: usize = 4096;
 
 /// What an engine is built with and never changes: the parameters, the cameras' projections
 /// and the domain new flies are drawn from.
@@ -158,6 +163,8 @@ struct Setup {
     left: Projector,
     right: Projector,
     sampler: Sampler,
+    /// The right camera's model (rays from its pixels).
+    right_camera: crate::geometry::Camera,
 }
 
 /// The evolving population and everything needed to run a generation without allocating.
@@ -180,6 +187,7 @@ pub struct Engine {
     mutation: Mutation,
     immigration: Immigration,
     uniqueness: Uniqueness,
+    sweeps: Sweeps,
     frame_size: (u32, u32, u32, u32),
     /// The road the region of interest's heights are measured from.
     road: RoadPlane,
@@ -221,6 +229,7 @@ impl Engine {
             sampler: Sampler::new(rig, &params)?,
             left: Projector::new(&rig.left),
             right: Projector::new(&rig.right),
+            right_camera: rig.right.clone(),
             params,
         };
         let params = &setup.params;
@@ -229,7 +238,9 @@ impl Engine {
             sharing: Grid::new(w, h, cell_px, params.sharing_exponent, n),
             rng: Xoshiro256PlusPlus::seed_from_u64(params.seed),
             scratch: Scratch::new(
-                Immigration::probe_capacity(params).max(AMBIGUITY_FLIES * AMBIGUITY_SHIFTS.len()),
+                Immigration::probe_capacity(params)
+                    .max(AMBIGUITY_FLIES * (AMBIGUITY_SHIFTS.len() + 1))
+                    .max(SWEEP_POINTS),
             ),
             isa: Isa::detect(),
             pop: Population::with_len(n),
@@ -244,6 +255,7 @@ impl Engine {
                 AMBIGUITY_FLIES,
                 rig.right.intrinsics().fx * rig.baseline(),
             ),
+            sweeps: Sweeps::new(SWEEP_POINTS, rig.right.intrinsics().fx * rig.baseline()),
             frame_size: (w, h, rig.right.width(), rig.right.height()),
             road: RoadPlane::FLAT,
             frame_id: None,
@@ -257,6 +269,7 @@ impl Engine {
             left,
             right,
             params,
+            ..
         } = &engine.setup;
         for i in 0..n {
             let (p, ok) = sampler.sample_fly(&mut engine.rng, left, right);

@@ -22,7 +22,7 @@ impl Default for RoadRoi {
         Self {
             max_height: 2.0,
             min_height: 0.1,
-            max_ahead: 16.0,
+            max_ahead: 40.0,
             penalty: 0.0,
         }
     }
@@ -126,7 +126,7 @@ impl Default for EngineParams {
             sharing_cell_px: 6,
             sharing_exponent: 1.5,
             min_depth: 1.0,
-            max_depth: 25.0,
+            max_depth: 40.0,
             roi: Some(RoadRoi::default()),
             warning_min_abs_x: 0.5,
             warning_min_z: 1.0,
@@ -295,7 +295,7 @@ mod tests {
 
     #[test]
     fn impossible_values_name_their_key() {
-        check(|p| p.min_depth = 30.0, "max_depth");
+        check(|p| p.min_depth = 50.0, "max_depth");
         check(|p| p.min_depth = -1.0, "min_depth");
         check(|p| p.survival_rate = 1.5, "survival_rate");
         check(|p| p.immigration_rate = 0.7, "immigration_rate");

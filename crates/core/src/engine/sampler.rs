@@ -16,7 +16,7 @@ pub(super) struct Sampler {
     xn: (f32, f32),
     yn: (f32, f32),
     /// Inverse depth range.
-    inv_depth: (f32, f32),
+    pub(super) inv_depth: (f32, f32),
     /// Undistorted normalised bounds (x0, x1, y0, y1) of each 16x16 block of the left image.
     pub(super) blocks: Vec<[f32; 4]>,
     /// Road region of interest as (min height, max height) above `road`: new flies are drawn
@@ -82,12 +82,26 @@ impl Sampler {
     /// the search range and the road region of interest; `None` when no point qualifies.
     #[inline]
     pub(super) fn ray_range(&self, xn: f32, yn: f32) -> Option<(f32, f32)> {
-        let (mut near, mut far) = (1.0 / self.inv_depth.1, 1.0 / self.inv_depth.0);
-        if let Some((lo, hi)) = self.heights {
+        self.ray_range_in(xn, yn, self.inv_depth, self.heights, self.road)
+    }
+
+    /// The inverse-depth range of the ray through `(xn, yn)` within `inv_depth` and, if given,
+    /// the `heights` above `road`; `None` when no point qualifies.
+    #[inline]
+    pub(super) fn ray_range_in(
+        &self,
+        xn: f32,
+        yn: f32,
+        inv_depth: (f32, f32),
+        heights: Option<(f32, f32)>,
+        road: [f32; 3],
+    ) -> Option<(f32, f32)> {
+        let (mut near, mut far) = (1.0 / inv_depth.1, 1.0 / inv_depth.0);
+        if let Some((lo, hi)) = heights {
             // Height above the road along the ray: h(d) = c + d * k, where y(d) = c_y + d k_y,
             // x(d), z(d) likewise, and the road rises by slope_z z + slope_x x.
             let along = |row: usize| self.m[row] * xn + self.m[row + 1] * yn + self.m[row + 2];
-            let [r0, rz, rx] = self.road;
+            let [r0, rz, rx] = road;
             let k = along(3) - rz * along(6) - rx * along(0);
             let c = self.c[1] - r0 - rz * self.c[2] - rx * self.c[0];
             if k.abs() < 1e-6 {

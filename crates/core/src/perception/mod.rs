@@ -1,0 +1,205 @@
+//! From a fly population to what the decision needs, in metres: the road and the nearest
+//! obstacle in the corridor.
+//!
+//! [`Perception`] owns the engine (the paper's population, whose region of interest is
+//! measured from the road), the road estimator ([`road`]), the obstacle stage ([`obstacle`])
+//! and its debounce ([`track`]). One [`Perception::step`] is one generation; on the first
+//! generation of each new frame the road is measured and the engine takes it; on every
+//! `estimate_every`-th generation (and each new frame's first) the obstacle stage looks at the
+//! corridor and the tracker takes its verdict.
+//!
+//! Pure, like the engine: frames in, values out; no allocation per step.
+
+pub mod obstacle;
+pub mod road;
+pub mod track;
+
+use serde::{Deserialize, Serialize};
+
+pub use obstacle::{
+    CorridorCounts, Obstacle, ObstacleConfig, ObstacleFinder, PerceptionParamError,
+};
+pub use road::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
+pub use track::{TrackConfig, Tracked, Tracker};
+
+use crate::engine::{Engine, EngineError, EngineParams, GenerationStats};
+use crate::frame::StereoFrame;
+use crate::geometry::StereoRig;
+use crate::road::RoadPlane;
+
+/// The `[perception]` settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerceptionConfig {
+    /// Obstacle estimates every this many generations besides each new frame's first (1:
+    /// every generation).
+    pub estimate_every: u32,
+    pub obstacle: ObstacleConfig,
+    pub track: TrackConfig,
+    pub road: RoadConfig,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self {
+            estimate_every: 1,
+            obstacle: ObstacleConfig::default(),
+            track: TrackConfig::default(),
+            road: RoadConfig::default(),
+        }
+    }
+}
+
+impl PerceptionConfig {
+    /// Checks every parameter; the error names the offending key.
+    pub fn validate(&self) -> Result<(), PerceptionParamError> {
+        self.obstacle.validate()?;
+        self.track.validate()?;
+        PerceptionParamError::check(
+            "estimate_every",
+            (1..=1000).contains(&self.estimate_every),
+            || format!("must be within 1..=1000, got {}", self.estimate_every),
+        )?;
+        self.road.validate()
+    }
+}
+
+/// Why perception cannot be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PerceptionError {
+    #[error(transparent)]
+    Param(#[from] PerceptionParamError),
+    #[error("the engine")]
+    Engine(#[source] EngineError),
+}
+
+/// What one step found.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PerceptionReport {
+    /// The engine's generation.
+    pub stats: GenerationStats,
+    /// The road the heights are measured from.
+    pub road: RoadEstimate,
+    /// The debounced obstacle (see [`Tracker`]).
+    pub tracked: Tracked,
+    /// What the latest obstacle estimate looked at.
+    pub corridor: CorridorCounts,
+    /// Whether this step ran the obstacle stage.
+    pub estimated: bool,
+}
+
+/// The engines, the road and the obstacle stage (see the module docs).
+pub struct Perception {
+    engine: Engine,
+    road: RoadEstimator,
+    finder: ObstacleFinder,
+    tracker: Tracker,
+    config: PerceptionConfig,
+    /// Generations before the obstacle stage runs (the population is not trusted before).
+    warmup: u64,
+    report: PerceptionReport,
+}
+
+impl Perception {
+    /// The engine over `rig`, the road prior being the calibration's (y = 0).
+    pub fn new(
+        rig: &StereoRig,
+        params: EngineParams,
+        config: PerceptionConfig,
+    ) -> Result<Self, PerceptionError> {
+        config.validate()?;
+        let flies = params.flies;
+        let engine = Engine::new(rig, params).map_err(PerceptionError::Engine)?;
+        let prior = RoadPlane::FLAT;
+        let fb = rig.right.intrinsics().fx * rig.baseline();
+        Ok(Self {
+            engine,
+            road: RoadEstimator::new(config.road, prior),
+            finder: ObstacleFinder::new(config.obstacle, flies, fb),
+            tracker: Tracker::new(config.track),
+            report: PerceptionReport {
+                stats: GenerationStats::default(),
+                road: RoadEstimate::prior(prior),
+                tracked: Tracked {
+                    obstacle: None,
+                    confirmed: false,
+                    seen_frames: 0,
+                },
+                corridor: CorridorCounts::default(),
+                estimated: false,
+            },
+            config,
+            warmup: 0,
+        })
+    }
+
+    /// No obstacle estimate in the first `generations` generations: a population not yet
+    /// converged on the scene holds chance matches, and a debounce fed with them would carry
+    /// them past the warm-up.
+    pub fn with_warmup(self, generations: u64) -> Self {
+        Self {
+            warmup: generations,
+            ..self
+        }
+    }
+
+    /// The engine.
+    pub fn engine(&self) -> &Engine {
+        &self.engine
+    }
+
+    /// The engine, e.g. to set its instruction set or to measure ambiguities.
+    pub fn engine_mut(&mut self) -> &mut Engine {
+        &mut self.engine
+    }
+
+    /// The road estimator (its latest points: [`RoadEstimator::swept`]).
+    pub fn road(&self) -> &RoadEstimator {
+        &self.road
+    }
+
+    pub fn config(&self) -> &PerceptionConfig {
+        &self.config
+    }
+
+    /// The latest step's report.
+    pub fn report(&self) -> &PerceptionReport {
+        &self.report
+    }
+
+    /// One generation on `frame`, then the road and obstacle stages
+    /// ([`Perception::evolve`] then [`Perception::observe`]; see the module docs).
+    pub fn step(&mut self, frame: &StereoFrame) -> Result<&PerceptionReport, EngineError> {
+        self.evolve(frame)?;
+        self.observe(frame)
+    }
+
+    /// One generation on `frame`.
+    pub fn evolve(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
+        let stats = self.engine.step(frame)?;
+        self.report.stats = stats;
+        self.report.estimated = false;
+        Ok(stats)
+    }
+
+    /// After [`Perception::evolve`] on `frame`: on a new frame, measures the road (both engines
+    /// take it for their next generation); when due, looks for the obstacle.
+    pub fn observe(&mut self, frame: &StereoFrame) -> Result<&PerceptionReport, EngineError> {
+        let stats = self.report.stats;
+        if self.config.road.enabled && stats.new_frame {
+            let road = self.road.update(&mut self.engine, frame)?;
+            self.engine.set_road(road.plane);
+            self.report.road = road;
+        }
+        let every = u64::from(self.config.estimate_every.max(1));
+        let due = stats.new_frame || stats.generation.is_multiple_of(every);
+        if due && stats.generation > self.warmup {
+            let road = self.report.road.plane;
+            let seen = self.finder.find(&mut self.engine, frame, &road)?;
+            self.report.tracked = self.tracker.update(frame.id, seen);
+            self.report.corridor = self.finder.counts();
+            self.report.estimated = true;
+        }
+        Ok(&self.report)
+    }
+}

@@ -1,0 +1,691 @@
+//! The nearest obstacle in the vehicle's corridor, in metres, from flies whose match is unique.
+//!
+//! Which flies count ([`ObstacleFinder::find`]):
+//! 1. **Candidates**: flies with a positive fitness (after the region of interest, before
+//!    sharing) inside the corridor: `|x| <= corridor_half_width`, `min_height..=max_height`
+//!    above the measured road, at most `max_distance` ahead. Flies on the road, above the
+//!    vehicle or off the corridor are no obstacle.
+//! 2. **A sample** of at most `candidates` of them, evenly spread over the population's order
+//!    (which is unrelated to position or fitness): the fittest flies are not the ones to take.
+//!    The paper's fitness rewards gradients, and the strongest gradients are the horizontal
+//!    edges (a head's top, a roof, a bumper) whose match is the most ambiguous: on hw-mock's
+//!    pedestrian the 200 fittest corridor flies were all ambiguous while 72 % of the corridor
+//!    flies on it were unique.
+//! 3. **Unique matches** only: the fly's fitness against the best of its left pixel at 2 and 4
+//!    pixels of disparity nearer and farther ([`Engine::ambiguity`], as SGBM's
+//!    `uniquenessRatio`) is at most `max_ambiguity`. A fly on a horizontal edge or a repeated
+//!    texture matches at many depths and proves nothing at its own.
+//! 4. **The nearest cluster**: scanning the unique flies by depth, the first window of
+//!    `max(min_cluster_depth, cluster_disparity_px z^2 / (f B))` metres (two pixels of
+//!    disparity: what stereo resolves at that depth) holding at least `min_flies` of them
+//!    within `cluster_width` of one another laterally (a handful of chance matches scattered
+//!    over the image at one depth is no object; on hw-mock's drive, 8 of them over 480 px
+//!    made one at 1.7 m), in
+//!    at least `min_cells` distinct `cell_px`-pixel squares of the left image, over at least
+//!    two rows of them, and `MIN_WIDTH_PX` columns and `min_width` metres wide (4 median
+//!    absolute deviations of its flies' positions: the width of a uniform spread, robust to
+//!    a few strays).
+//!    An obstacle is seen in several places of the
+//!    image, across and up; a false match is one place, however many flies crowd on it (on
+//!    KITTI 2015 #0, 12 flies on one lane-marking tip, 4.7 px of disparity off the truth, made
+//!    a 0.4 m "obstacle" at 18.8 m; 7 on one facade window at 1.1 m), or one vertical edge (on
+//!    hw-mock's empty road, the end of one roadside wall matched with the end of the next one,
+//!    102-118 px of disparity off, made a 1.3-1.5 m "obstacle" 1 cm wide; on hw-mock's drive,
+//!    a row of identical trees on the horizon matched a tree off, one at 2.1 m). A real
+//!    obstacle near the vehicle is large in the image. The price: an object narrower than
+//!    0.1 m, or than 4 px (a 0.1 m pole beyond 13 m at 640 px), may not be reported.
+//!
+//! 5. **Verified along the line**: the `verify_flies` fittest flies of the cluster are
+//!    compared with the best match of their left pixel, and of their right pixel, along the
+//!    whole epipolar line ([`Engine::line_ambiguity`], every `line_step_px`): a repeated
+//!    structure matches a period away (on hw-mock's empty road, 30 flies on one pole matched
+//!    with the next pole 102 px of disparity off made a 1.5 m "obstacle" unique within 4 px).
+//!    Unless half of them are unique there too (ambiguity at most `max_line_ambiguity`), the
+//!    cluster is dropped and the next one looked at (at most `MAX_VERIFIED` an estimate).
+//!    Verdicts are kept for the frame: a cluster at the same depth on the same frame is not
+//!    verified again. (The fittest flies of hw-mock's pedestrian measure 0.002-0.1 along the
+//!    line, those of its car 0.25-0.95: the car's texture is mostly horizontal lines.)
+//!
+//! The obstacle is that cluster: its median depth and lateral offset, the heights of its lowest
+//! and highest fly above the road, its size, and a confidence that grows with it (100 % at four
+//! times `min_flies`). Whether it persisted over frames is the [`super::track::Tracker`]'s.
+//! No allocation: every buffer is sized in [`ObstacleFinder::new`].
+
+use serde::{Deserialize, Serialize};
+
+use crate::engine::{Engine, EngineError};
+use crate::frame::StereoFrame;
+use crate::road::RoadPlane;
+
+/// What the obstacle stage looks for; the defaults are the vehicle's and the measurement's
+/// (docs/perception.md).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObstacleConfig {
+    /// Half-width of the corridor the vehicle sweeps: its half-width plus a margin, metres.
+    pub corridor_half_width: f64,
+    /// Lower bound of an obstacle's fly above the road, metres: below is road (and what a
+    /// vehicle drives over: kerbs, cat's eyes).
+    pub min_height: f64,
+    /// Upper bound above the road, metres: the vehicle's height plus a margin (bridges, signs,
+    /// branches above are no obstacle).
+    pub max_height: f64,
+    /// Flies farther ahead are not looked at, metres.
+    pub max_distance: f64,
+    /// Corridor flies whose uniqueness is measured per estimate (4 evaluations each).
+    pub candidates: usize,
+    /// A fly's match is unique when its ambiguity (see the module docs) is at most this.
+    pub max_ambiguity: f64,
+    /// Unique flies a cluster needs to be an obstacle.
+    pub min_flies: usize,
+    /// Depth extent of a cluster, in pixels of disparity.
+    pub cluster_disparity_px: f64,
+    /// ... and at least this many metres.
+    pub min_cluster_depth: f64,
+    /// Distinct squares of the left image a cluster's flies must lie in.
+    pub min_cells: usize,
+    /// Lateral extent of a cluster, at least (4 median absolute deviations), metres.
+    pub min_width: f64,
+    /// ... and at most: its flies lie within this of one another laterally, metres.
+    pub cluster_width: f64,
+    /// Flies of a cluster verified along the whole epipolar line (0: no verification).
+    pub verify_flies: usize,
+    /// Disparity step of that verification, pixels.
+    pub line_step_px: f64,
+    /// A fly holds up along the line when the best match elsewhere on it is at most this
+    /// share of its own (libelas's support threshold: 0.85). Looser than `max_ambiguity`:
+    /// the line offers hundreds of chances to the noise where the shifts offer four.
+    pub max_line_ambiguity: f64,
+    /// Side of those squares, pixels.
+    pub cell_px: u32,
+}
+
+impl Default for ObstacleConfig {
+    fn default() -> Self {
+        Self {
+            corridor_half_width: 1.2,
+            min_height: 0.3,
+            max_height: 2.0,
+            max_distance: 40.0,
+            candidates: 256,
+            max_ambiguity: 0.5,
+            min_flies: 8,
+            cluster_disparity_px: 2.0,
+            min_cluster_depth: 0.1,
+            min_cells: 4,
+            min_width: 0.1,
+            cluster_width: 1.0,
+            cell_px: 8,
+            verify_flies: 6,
+            line_step_px: 1.0,
+            max_line_ambiguity: 0.85,
+        }
+    }
+}
+
+/// An [`ObstacleConfig`] that cannot work, named as in the configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("perception parameter '{key}': {reason}")]
+pub struct PerceptionParamError {
+    pub key: &'static str,
+    pub reason: String,
+}
+
+impl PerceptionParamError {
+    pub(super) fn check(
+        key: &'static str,
+        ok: bool,
+        reason: impl FnOnce() -> String,
+    ) -> Result<(), Self> {
+        if ok {
+            Ok(())
+        } else {
+            Err(Self {
+                key,
+                reason: reason(),
+            })
+        }
+    }
+}
+
+impl ObstacleConfig {
+    /// Checks every parameter; the error names the offending key.
+    pub fn validate(&self) -> Result<(), PerceptionParamError> {
+        let positive = |key, v: f64| {
+            PerceptionParamError::check(key, v.is_finite() && v > 0.0, || {
+                format!("must be > 0, got {v}")
+            })
+        };
+        positive("obstacle.corridor_half_width", self.corridor_half_width)?;
+        positive("obstacle.max_distance", self.max_distance)?;
+        positive("obstacle.cluster_disparity_px", self.cluster_disparity_px)?;
+        positive("obstacle.min_cluster_depth", self.min_cluster_depth)?;
+        positive("obstacle.cluster_width", self.cluster_width)?;
+        PerceptionParamError::check(
+            "obstacle.min_width",
+            self.min_width.is_finite() && self.min_width >= 0.0,
+            || format!("must be >= 0, got {}", self.min_width),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.max_height",
+            self.min_height.is_finite()
+                && self.max_height.is_finite()
+                && self.max_height > self.min_height,
+            || format!("must be greater than min_height ({})", self.min_height),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.max_ambiguity",
+            self.max_ambiguity.is_finite() && self.max_ambiguity > 0.0,
+            || format!("must be > 0, got {}", self.max_ambiguity),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.candidates",
+            (16..=4096).contains(&self.candidates),
+            || format!("must be within 16..=4096, got {}", self.candidates),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.min_flies",
+            (1..=self.candidates).contains(&self.min_flies),
+            || format!("must be within 1..=candidates, got {}", self.min_flies),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.min_cells",
+            (1..=self.min_flies).contains(&self.min_cells),
+            || format!("must be within 1..=min_flies, got {}", self.min_cells),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.cell_px",
+            (1..=256).contains(&self.cell_px),
+            || format!("must be within 1..=256, got {}", self.cell_px),
+        )?;
+        PerceptionParamError::check("obstacle.verify_flies", self.verify_flies <= 32, || {
+            format!("must be within 0..=32, got {}", self.verify_flies)
+        })?;
+        PerceptionParamError::check(
+            "obstacle.max_line_ambiguity",
+            self.max_line_ambiguity.is_finite() && self.max_line_ambiguity > 0.0,
+            || format!("must be > 0, got {}", self.max_line_ambiguity),
+        )?;
+        PerceptionParamError::check(
+            "obstacle.line_step_px",
+            self.line_step_px.is_finite() && (0.25..=8.0).contains(&self.line_step_px),
+            || format!("must be within [0.25, 8], got {}", self.line_step_px),
+        )
+    }
+}
+
+/// The nearest obstacle in the corridor, vehicle frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Obstacle {
+    /// Ahead, metres (vehicle z): the cluster's median depth.
+    pub distance: f64,
+    /// Lateral offset, metres (vehicle x, positive right): the cluster's median.
+    pub lateral: f64,
+    /// Height above the road of the cluster's lowest fly, metres.
+    pub bottom: f64,
+    /// ... and of its highest.
+    pub top: f64,
+    /// Unique flies in the cluster.
+    pub flies: usize,
+    /// Distinct `cell_px` squares of the left image they lie in.
+    pub cells: usize,
+    /// 0..=100 %: grows with `flies`, 100 at four times `min_flies`.
+    pub confidence: f64,
+}
+
+/// One estimate's look at the corridor, whether or not it found an obstacle (for logs and
+/// traces).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct CorridorCounts {
+    /// Flies in the corridor (step 1).
+    pub candidates: usize,
+    /// Of which measured (step 2).
+    pub sampled: usize,
+    /// Of which unique (step 3).
+    pub unique: usize,
+}
+
+/// The obstacle stage, with its buffers (see the module docs).
+#[derive(Debug, Clone)]
+pub struct ObstacleFinder {
+    config: ObstacleConfig,
+    /// Disparity (pixels) per m^-1 of inverse depth: f B.
+    pixels_per_inverse_depth: f64,
+    corridor: Vec<u32>,
+    sample: Vec<u32>,
+    ambiguity: Vec<f32>,
+    /// (depth, left-image cell, index) of the unique flies.
+    unique: Vec<Unique>,
+    scratch: Vec<f32>,
+    cells: Vec<u32>,
+    counts: CorridorCounts,
+    /// The flies of the cluster being looked at.
+    members: Vec<Unique>,
+    /// The flies of a cluster being verified, and their line ambiguities.
+    verify: Vec<u32>,
+    verify_out: Vec<f32>,
+    /// Verdicts on this frame's clusters: (frame, nearest depth, farthest depth, genuine).
+    verdicts: [(u64, f32, f32, bool); MAX_VERIFIED * 2],
+    verdict_next: usize,
+}
+
+/// A cluster whose flies' middle 80 % spans fewer image columns than this is one vertical
+/// edge (see the module docs, step 4).
+const MIN_WIDTH_PX: f32 = 4.0;
+
+/// Clusters verified along the line per estimate, at most.
+pub const MAX_VERIFIED: usize = 3;
+
+impl ObstacleFinder {
+    /// Buffers for `flies` flies, for a rig of `pixels_per_inverse_depth` = f B.
+    pub fn new(config: ObstacleConfig, flies: usize, pixels_per_inverse_depth: f64) -> Self {
+        let k = config.candidates;
+        Self {
+            config,
+            pixels_per_inverse_depth,
+            corridor: Vec::with_capacity(flies),
+            sample: Vec::with_capacity(k),
+            ambiguity: vec![0.0; k],
+            unique: Vec::with_capacity(k),
+            scratch: Vec::with_capacity(k),
+            cells: Vec::with_capacity(k),
+            counts: CorridorCounts::default(),
+            members: Vec::with_capacity(k),
+            verify: Vec::with_capacity(k),
+            verify_out: vec![0.0; 32],
+            verdicts: [(u64::MAX, 0.0, 0.0, false); MAX_VERIFIED * 2],
+            verdict_next: 0,
+        }
+    }
+
+    pub fn config(&self) -> &ObstacleConfig {
+        &self.config
+    }
+
+    /// What the latest [`ObstacleFinder::find`] looked at.
+    pub fn counts(&self) -> CorridorCounts {
+        self.counts
+    }
+
+    /// The nearest obstacle in the corridor of `engine`'s population above `road`; `frame` is
+    /// that of the engine's latest step.
+    pub fn find(
+        &mut self,
+        engine: &mut Engine,
+        frame: &StereoFrame,
+        road: &RoadPlane,
+    ) -> Result<Option<Obstacle>, EngineError> {
+        let c = self.config;
+        let pop = engine.population();
+        self.corridor.clear();
+        let (half, lo, hi, far) = (
+            c.corridor_half_width as f32,
+            c.min_height as f32,
+            c.max_height as f32,
+            c.max_distance as f32,
+        );
+        let [r0, rz, rx] = road.coefficients();
+        self.corridor.extend((0..pop.len()).filter_map(|i| {
+            let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
+            let h = y - (r0 + rz * z + rx * x);
+            let inside = pop.raw_fitness[i] > 0.0
+                && x.abs() <= half
+                && (lo..=hi).contains(&h)
+                && z > 0.0
+                && z <= far;
+            inside.then_some(i as u32)
+        }));
+        let n = self.corridor.len();
+        let k = c.candidates.min(engine.ambiguity_capacity()).min(n);
+        self.sample.clear();
+        // Evenly spread over the corridor flies, in population order.
+        self.sample
+            .extend((0..k).map(|j| self.corridor[j * n / k.max(1)]));
+        let measured = engine.ambiguity(frame, &self.sample, &mut self.ambiguity[..k])?;
+        let pop = engine.population();
+        let cell_px = c.cell_px.max(1) as f32;
+        let cell_of = |i: usize| {
+            // Inside the image (the fly has a fitness): u, v >= -0.5.
+            let (cu, cv) = (
+                ((pop.u_left[i] + 0.5) / cell_px) as u32,
+                ((pop.v_left[i] + 0.5) / cell_px) as u32,
+            );
+            (cv << 16) | (cu & 0xFFFF)
+        };
+        self.unique.clear();
+        self.unique.extend(
+            self.sample[..measured]
+                .iter()
+                .zip(&self.ambiguity[..measured])
+                .filter(|&(_, &a)| f64::from(a) <= c.max_ambiguity)
+                .map(|(&i, _)| Unique {
+                    z: pop.z[i as usize],
+                    cell: cell_of(i as usize),
+                    u: pop.u_left[i as usize],
+                    x: pop.x[i as usize],
+                    index: i,
+                }),
+        );
+        self.counts = CorridorCounts {
+            candidates: n,
+            sampled: measured,
+            unique: self.unique.len(),
+        };
+        self.unique
+            .sort_unstable_by(|a, b| a.z.total_cmp(&b.z).then(a.index.cmp(&b.index)));
+        let mut start = 0;
+        let mut found = None;
+        for _ in 0..MAX_VERIFIED {
+            let Some((to, cells)) = nearest_cluster(
+                &self.unique[start..],
+                &c,
+                self.pixels_per_inverse_depth,
+                &mut self.cells,
+                &mut self.members,
+            ) else {
+                break;
+            };
+            if self.genuine(engine, frame)? {
+                found = Some(cells);
+                break;
+            }
+            start += to;
+        }
+        let Some(cells) = found else {
+            return Ok(None);
+        };
+        let pop = engine.population();
+        let cluster = &self.members;
+        let median = |scratch: &mut Vec<f32>, f: &dyn Fn(u32) -> f32| {
+            scratch.clear();
+            scratch.extend(cluster.iter().map(|u| f(u.index)));
+            scratch.sort_unstable_by(f32::total_cmp);
+            f64::from(scratch[scratch.len() / 2])
+        };
+        let height = |i: u32| {
+            let i = i as usize;
+            pop.y[i] - (r0 + rz * pop.z[i] + rx * pop.x[i])
+        };
+        let distance = median(&mut self.scratch, &|i| pop.z[i as usize]);
+        let lateral = median(&mut self.scratch, &|i| pop.x[i as usize]);
+        let (bottom, top) = cluster.iter().fold((f32::MAX, f32::MIN), |(b, t), u| {
+            let h = height(u.index);
+            (b.min(h), t.max(h))
+        });
+        let flies = cluster.len();
+        Ok(Some(Obstacle {
+            distance,
+            lateral,
+            bottom: f64::from(bottom),
+            top: f64::from(top),
+            flies,
+            cells,
+            confidence: (100.0 * flies as f64 / (4 * c.min_flies) as f64).min(100.0),
+        }))
+    }
+}
+
+impl ObstacleFinder {
+    /// Whether the cluster in `members` holds up along the epipolar line (see the module
+    /// docs, step 5); the verdict is kept for the frame.
+    fn genuine(&mut self, engine: &mut Engine, frame: &StereoFrame) -> Result<bool, EngineError> {
+        let c = self.config;
+        let cluster = &self.members;
+        let (near, far) = cluster
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(a, b), u| (a.min(u.z), b.max(u.z)));
+        if c.verify_flies == 0 {
+            return Ok(true);
+        }
+        let known = self
+            .verdicts
+            .iter()
+            .find(|&&(f, lo, hi, _)| f == frame.id && near <= hi && far >= lo);
+        if let Some(&(_, _, _, genuine)) = known {
+            return Ok(genuine);
+        }
+        let k = c.verify_flies.min(cluster.len());
+        // The fittest of the cluster: a genuine obstacle's best matches are its surest.
+        self.verify.clear();
+        self.verify.extend(cluster.iter().map(|u| u.index));
+        let fitness = &engine.population().raw_fitness;
+        let by_fitness = |a: &u32, b: &u32| {
+            fitness[*b as usize]
+                .total_cmp(&fitness[*a as usize])
+                .then(a.cmp(b))
+        };
+        if k < self.verify.len() {
+            self.verify.select_nth_unstable_by(k - 1, by_fitness);
+            self.verify.truncate(k);
+        }
+        let out = &mut self.verify_out[..k];
+        engine.line_ambiguity(frame, &self.verify, c.line_step_px as f32, out)?;
+        let unique = out
+            .iter()
+            .filter(|&&a| f64::from(a) <= c.max_line_ambiguity)
+            .count();
+        let genuine = 2 * unique >= k;
+        self.verdicts[self.verdict_next] = (frame.id, near, far, genuine);
+        self.verdict_next = (self.verdict_next + 1) % self.verdicts.len();
+        Ok(genuine)
+    }
+}
+
+/// The median absolute deviation of `v` (reordered); 0 when empty.
+fn mad(v: &mut [f32]) -> f32 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_unstable_by(f32::total_cmp);
+    let median = v[v.len() / 2];
+    for x in v.iter_mut() {
+        *x = (*x - median).abs();
+    }
+    v.sort_unstable_by(f32::total_cmp);
+    v[v.len() / 2]
+}
+
+/// A unique fly: its depth, its left-image cell (row << 16 | column), its left-image column,
+/// its lateral position and its index.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Unique {
+    z: f32,
+    cell: u32,
+    u: f32,
+    x: f32,
+    index: u32,
+}
+
+/// The nearest cluster of `unique` (sorted by depth): the first depth window (see the module
+/// docs, step 4) whose flies within `cluster_width` of one another laterally are at least
+/// `min_flies`, over `min_cells` cells and two rows, and wide enough. Puts its flies into
+/// `members`; returns the end of its depth window in `unique` and its cell count (`cells` is
+/// scratch).
+fn nearest_cluster(
+    unique: &[Unique],
+    c: &ObstacleConfig,
+    pixels_per_inverse_depth: f64,
+    cells: &mut Vec<u32>,
+    members: &mut Vec<Unique>,
+) -> Option<(usize, usize)> {
+    let mut to = 0;
+    let width = c.cluster_width as f32;
+    for (from, u) in unique.iter().enumerate() {
+        let z = f64::from(u.z);
+        let depth =
+            (c.cluster_disparity_px * z * z / pixels_per_inverse_depth).max(c.min_cluster_depth);
+        let end = (z + depth) as f32;
+        to = to.max(from);
+        while to < unique.len() && unique[to].z <= end {
+            to += 1;
+        }
+        if to - from < c.min_flies {
+            continue;
+        }
+        // Laterally: the most flies within `cluster_width` of one another.
+        members.clear();
+        members.extend_from_slice(&unique[from..to]);
+        members.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.index.cmp(&b.index)));
+        let (mut best, mut lo) = ((0, 0), 0);
+        for hi in 0..members.len() {
+            while members[hi].x - members[lo].x > width {
+                lo += 1;
+            }
+            if hi + 1 - lo > best.1 - best.0 {
+                best = (lo, hi + 1);
+            }
+        }
+        if best.1 - best.0 < c.min_flies {
+            continue;
+        }
+        members.truncate(best.1);
+        members.drain(..best.0);
+        cells.clear();
+        cells.extend(members.iter().map(|u| u.cell));
+        cells.sort_unstable();
+        cells.dedup();
+        let distinct = cells.len();
+        // Cells are row << 16 | column: sorted, the first and last rows differ unless all
+        // lie in one row.
+        let rows = cells.first().map(|c| c >> 16) != cells.last().map(|c| c >> 16);
+        // Across: the cluster's width, 4 median absolute deviations of its flies' columns
+        // (the width of a uniform spread; robust to a few strays), is MIN_WIDTH_PX or more,
+        // and so is that of their lateral positions in metres, `min_width`.
+        let n = members.len().min(256);
+        let mut us = [0f32; 256];
+        let mut xs = [0f32; 256];
+        for ((su, sx), u) in us.iter_mut().zip(xs.iter_mut()).zip(members.iter()) {
+            (*su, *sx) = (u.u, u.x);
+        }
+        let across = 4.0 * mad(&mut us[..n]) >= MIN_WIDTH_PX
+            && f64::from(4.0 * mad(&mut xs[..n])) >= c.min_width;
+        if distinct >= c.min_cells && rows && across {
+            return Some((to, distinct));
+        }
+    }
+    members.clear();
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Flies at `depths`, each in its own cell.
+    fn flies(depths: &[f32]) -> Vec<Unique> {
+        depths
+            .iter()
+            .enumerate()
+            .map(|(i, &z)| Unique {
+                z,
+                // A diagonal: every fly its own row and column, 8 px apart.
+                cell: (i as u32) << 16 | i as u32,
+                u: 8.0 * i as f32,
+                x: 0.1 * i as f32,
+                index: i as u32,
+            })
+            .collect()
+    }
+
+    /// The cluster's flies' indices.
+    fn cluster(u: &[Unique], c: &ObstacleConfig) -> Option<Vec<u32>> {
+        let mut members = Vec::new();
+        nearest_cluster(u, c, 400.0, &mut Vec::new(), &mut members)?;
+        let mut ids: Vec<u32> = members.iter().map(|m| m.index).collect();
+        ids.sort_unstable();
+        Some(ids)
+    }
+
+    #[test]
+    fn the_nearest_window_with_enough_flies_is_the_cluster() {
+        let c = ObstacleConfig {
+            min_flies: 3,
+            min_cells: 3,
+            ..ObstacleConfig::default()
+        };
+        // Two strays at 2 and 3 m, then three flies within 2 px of disparity (0.125 m) at
+        // 5 m, then a wall at 9 m.
+        let u = flies(&[2.0, 3.0, 5.0, 5.05, 5.1, 9.0, 9.0, 9.0, 9.0]);
+        assert_eq!(cluster(&u, &c), Some(vec![2, 3, 4]));
+        // Without the third fly at 5 m, the wall.
+        let u = flies(&[2.0, 3.0, 5.0, 5.1, 9.0, 9.0, 9.0, 9.0]);
+        assert_eq!(cluster(&u, &c), Some(vec![4, 5, 6, 7]));
+        assert_eq!(cluster(&flies(&[1.0, 2.0]), &c), None);
+    }
+
+    #[test]
+    fn flies_crowding_on_one_place_of_the_image_are_no_obstacle() {
+        let c = ObstacleConfig {
+            min_flies: 3,
+            min_cells: 2,
+            ..ObstacleConfig::default()
+        };
+        // Five flies at 1.1 m on one cell (a false match), three at 2 m in one column (one
+        // vertical edge), then a cluster over two cells.
+        let mut u = flies(&[1.1, 1.1, 1.1, 1.1, 1.1, 2.0, 2.0, 2.0, 6.0, 6.05, 6.1]);
+        for f in &mut u[..5] {
+            f.cell = 77;
+        }
+        for (row, f) in u[5..8].iter_mut().enumerate() {
+            f.cell = (row as u32) << 16 | 40;
+            f.u = 320.5 + 0.5 * row as f32;
+            f.x = 0.01 * row as f32;
+        }
+        u[9].cell = u[8].cell;
+        assert_eq!(cluster(&u, &c), Some(vec![8, 9, 10]));
+    }
+
+    #[test]
+    fn chance_matches_scattered_across_the_image_are_no_obstacle() {
+        let c = ObstacleConfig {
+            min_flies: 4,
+            min_cells: 2,
+            ..ObstacleConfig::default()
+        };
+        // Six flies at one depth, 0.5 m apart laterally: never four within 1 m.
+        let mut u = flies(&[3.0; 6]);
+        for (i, f) in u.iter_mut().enumerate() {
+            f.x = -1.2 + 0.5 * i as f32;
+        }
+        assert_eq!(cluster(&u, &c), None);
+        // Packed within 0.9 m, they are one.
+        for (i, f) in u.iter_mut().enumerate() {
+            f.x = -0.45 + 0.18 * i as f32;
+        }
+        assert_eq!(cluster(&u, &c), Some((0..6).collect()));
+    }
+
+    #[test]
+    fn a_cluster_is_two_pixels_of_disparity_deep() {
+        let c = ObstacleConfig {
+            min_flies: 2,
+            min_cells: 2,
+            ..ObstacleConfig::default()
+        };
+        // f B = 400: at 20 m two pixels are 2 * 400 / 400 = 2 m of depth.
+        assert_eq!(cluster(&flies(&[20.0, 21.9]), &c), Some(vec![0, 1]));
+        assert_eq!(cluster(&flies(&[20.0, 22.1]), &c), None);
+        // Near the vehicle, at least min_cluster_depth.
+        assert_eq!(cluster(&flies(&[2.0, 2.09]), &c), Some(vec![0, 1]));
+        assert_eq!(cluster(&flies(&[2.0, 2.11]), &c), None);
+    }
+
+    #[test]
+    fn a_config_that_cannot_work_is_named() {
+        let bad = ObstacleConfig {
+            min_height: 2.0,
+            max_height: 1.0,
+            ..ObstacleConfig::default()
+        };
+        assert_eq!(
+            bad.validate().map_err(|e| e.key),
+            Err("obstacle.max_height")
+        );
+        let bad = ObstacleConfig {
+            min_flies: 0,
+            ..ObstacleConfig::default()
+        };
+        assert_eq!(bad.validate().map_err(|e| e.key), Err("obstacle.min_flies"));
+        assert_eq!(ObstacleConfig::default().validate(), Ok(()));
+    }
+}

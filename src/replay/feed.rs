@@ -1,0 +1,305 @@
+//! Where replayed frames come from: one stereo pair, a folder of pairs, or a hw-mock scenario.
+
+use std::path::{Path, PathBuf};
+
+use flyd_core::calib::Calibration;
+use flyd_core::frame::{PixelFormat, StereoFrame};
+use flyd_core::geometry::StereoRig;
+use image::RgbImage;
+
+use super::{ReplayError, load_rgb};
+use crate::mock::MockStereo;
+
+/// Where replayed frames come from.
+pub trait FrameFeed {
+    fn rig(&self) -> &StereoRig;
+    /// How many frames there are.
+    fn frames(&self) -> u64;
+    /// Puts frame `index` into `frame` (prepared) and `left` (the left image as captured, for
+    /// the overlay).
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError>;
+    /// The frame at which the first obstacle appears, when the feed knows it (a scenario).
+    fn first_obstacle(&self) -> Option<u64> {
+        None
+    }
+    /// The name of frame `index` (its left file, for a sequence).
+    fn frame_name(&self, index: u64) -> String {
+        index.to_string()
+    }
+}
+
+/// One stereo pair, evaluated again and again (the paper's setting): one frame, or the same
+/// images as several frames ([`PairFeed::repeated`]), as a still camera films a still scene.
+pub struct PairFeed {
+    rig: StereoRig,
+    left: RgbImage,
+    right: RgbImage,
+    frames: u64,
+}
+
+impl PairFeed {
+    /// The pair `left`, `right` and its calibration (which must describe their sizes).
+    pub fn load(
+        left: &Path,
+        right: &Path,
+        calibration: &Path,
+    ) -> Result<(Self, Calibration), ReplayError> {
+        let cal = flyd_core::calib::load(calibration)?;
+        let (l, r) = (load_rgb(left)?, load_rgb(right)?);
+        for (which, img, cam, path) in [
+            ("left", &l, &cal.rig.left, left),
+            ("right", &r, &cal.rig.right, right),
+        ] {
+            check_size(which, img, cam, path, calibration)?;
+        }
+        let feed = Self {
+            rig: cal.rig.clone(),
+            left: l,
+            right: r,
+            frames: 1,
+        };
+        Ok((feed, cal))
+    }
+
+    /// The pair as `frames` frames of a still video (at least 1).
+    pub fn repeated(self, frames: u64) -> Self {
+        Self {
+            frames: frames.max(1),
+            ..self
+        }
+    }
+}
+
+impl FrameFeed for PairFeed {
+    fn rig(&self) -> &StereoRig {
+        &self.rig
+    }
+
+    fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    fn load(
+        &mut self,
+        _: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        frame.left.prepare(PixelFormat::Rgb8, self.left.as_raw())?;
+        frame
+            .right
+            .prepare(PixelFormat::Rgb8, self.right.as_raw())?;
+        left.clone_from(&self.left);
+        Ok(())
+    }
+}
+
+/// A hw-mock scenario rendered through the mock rig.
+pub struct ScenarioFeed {
+    mock: MockStereo,
+    first_obstacle: Option<u64>,
+}
+
+impl ScenarioFeed {
+    pub fn new(name: &str, width: u32, height: u32) -> Result<Self, ReplayError> {
+        let scenario =
+            hw_mock::Scenario::by_name(name).ok_or_else(|| ReplayError::UnknownScenario {
+                name: name.to_string(),
+                known: hw_mock::Scenario::names().join(", "),
+            })?;
+        let first_obstacle = scenario.first_obstacle_frame().map(u64::from);
+        Ok(Self {
+            mock: MockStereo::new(scenario, width, height)?,
+            first_obstacle,
+        })
+    }
+}
+
+impl ScenarioFeed {
+    /// The scenario's frame rate.
+    pub fn fps(&self) -> f64 {
+        self.mock.scenario().fps()
+    }
+}
+
+impl FrameFeed for ScenarioFeed {
+    fn rig(&self) -> &StereoRig {
+        self.mock.rig()
+    }
+
+    fn frames(&self) -> u64 {
+        self.mock.scenario().frame_count() as u64
+    }
+
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        let index = u32::try_from(index).unwrap_or(u32::MAX);
+        let (l, r) = self.mock.frame(index)?;
+        frame.left.prepare(PixelFormat::Rgb8, l)?;
+        frame.right.prepare(PixelFormat::Rgb8, r)?;
+        left.copy_from_slice(l);
+        Ok(())
+    }
+
+    fn first_obstacle(&self) -> Option<u64> {
+        self.first_obstacle
+    }
+}
+
+/// Image files of a sequence folder, in name order.
+fn images_in(dir: &Path) -> Result<Vec<PathBuf>, ReplayError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| ReplayError::Io {
+        path: dir.display().to_string(),
+        source,
+    })?;
+    let mut files = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|source| ReplayError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let path = entry.path();
+        let image = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| ["png", "jpg", "jpeg"].contains(&e.to_ascii_lowercase().as_str()));
+        if image && path.is_file() {
+            files.push(path);
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+/// A folder of stereo pairs, replayed in name order: `left/` + `right/`, or KITTI raw's
+/// `image_02/data` + `image_03/data`. Left and right files pair by name.
+pub struct SequenceFeed {
+    rig: StereoRig,
+    calibration: PathBuf,
+    pairs: Vec<(PathBuf, PathBuf)>,
+}
+
+/// The layouts [`SequenceFeed::open`] knows, as (left, right) folders.
+pub const SEQUENCE_LAYOUTS: [(&str, &str); 2] =
+    [("left", "right"), ("image_02/data", "image_03/data")];
+
+impl SequenceFeed {
+    /// The sequence in `dir`, whose pairs `calibration` describes (every image its size).
+    pub fn open(dir: &Path, calibration: &Path) -> Result<(Self, Calibration), ReplayError> {
+        let cal = flyd_core::calib::load(calibration)?;
+        let Some((l, r)) = SEQUENCE_LAYOUTS
+            .iter()
+            .map(|(l, r)| (dir.join(l), dir.join(r)))
+            .find(|(l, r)| l.is_dir() && r.is_dir())
+        else {
+            return Err(ReplayError::SequenceLayout {
+                dir: dir.display().to_string(),
+            });
+        };
+        let (left, right) = (images_in(&l)?, images_in(&r)?);
+        let name = |p: &PathBuf| p.file_name().map(|n| n.to_os_string());
+        let mut pairs = Vec::with_capacity(left.len());
+        for file in &left {
+            let partner = right
+                .iter()
+                .find(|p| name(p) == name(file))
+                .ok_or_else(|| ReplayError::SequenceUnpaired {
+                    file: file.display().to_string(),
+                    dir: r.display().to_string(),
+                })?;
+            pairs.push((file.clone(), partner.clone()));
+        }
+        if let Some(extra) = right
+            .iter()
+            .find(|p| !left.iter().any(|f| name(f) == name(p)))
+        {
+            return Err(ReplayError::SequenceUnpaired {
+                file: extra.display().to_string(),
+                dir: l.display().to_string(),
+            });
+        }
+        if pairs.is_empty() {
+            return Err(ReplayError::SequenceEmpty {
+                dir: l.display().to_string(),
+            });
+        }
+        let feed = Self {
+            rig: cal.rig.clone(),
+            calibration: calibration.to_path_buf(),
+            pairs,
+        };
+        Ok((feed, cal))
+    }
+}
+
+impl FrameFeed for SequenceFeed {
+    fn rig(&self) -> &StereoRig {
+        &self.rig
+    }
+
+    fn frames(&self) -> u64 {
+        self.pairs.len() as u64
+    }
+
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        let i = usize::try_from(index)
+            .unwrap_or(usize::MAX)
+            .min(self.pairs.len().saturating_sub(1));
+        let (l, r) = &self.pairs[i];
+        let (li, ri) = (load_rgb(l)?, load_rgb(r)?);
+        for (which, img, cam, path) in [
+            ("left", &li, &self.rig.left, l),
+            ("right", &ri, &self.rig.right, r),
+        ] {
+            check_size(which, img, cam, path, &self.calibration)?;
+        }
+        frame.left.prepare(PixelFormat::Rgb8, li.as_raw())?;
+        frame.right.prepare(PixelFormat::Rgb8, ri.as_raw())?;
+        *left = li;
+        Ok(())
+    }
+
+    fn frame_name(&self, index: u64) -> String {
+        usize::try_from(index)
+            .ok()
+            .and_then(|i| self.pairs.get(i))
+            .and_then(|(l, _)| l.file_name())
+            .map_or_else(|| index.to_string(), |n| n.to_string_lossy().into_owned())
+    }
+}
+
+/// An image of another size than its camera: an error naming both.
+fn check_size(
+    which: &'static str,
+    img: &RgbImage,
+    cam: &flyd_core::geometry::Camera,
+    image: &Path,
+    calibration: &Path,
+) -> Result<(), ReplayError> {
+    if img.dimensions() == (cam.width(), cam.height()) {
+        return Ok(());
+    }
+    Err(ReplayError::ImageSize {
+        which,
+        image: image.display().to_string(),
+        calibration: calibration.display().to_string(),
+        got_w: img.width(),
+        got_h: img.height(),
+        want_w: cam.width(),
+        want_h: cam.height(),
+    })
+}

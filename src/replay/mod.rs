@@ -1,0 +1,359 @@
+//! `flyd replay`: run perception and the decision on recorded or synthetic frames and write
+//! what they found.
+//!
+//! Frames come from one stereo pair (evaluated again and again, the paper's setting), a folder
+//! of pairs (`--sequence`, in name order at `--fps`) or a hw-mock scenario ([`feed`]). Each
+//! generation runs [`Perception::step`] (both engines, the road, the obstacle stage) and the
+//! [`Decider`] at the generation's time on the frames' clock, at the assumed speed; the
+//! decider takes no input during the warm-up (it holds the safe command, as the daemon does).
+//!
+//! Outputs, in the output directory ([`output`]):
+//! - `road_points.csv`: the road measurement's points on the last new frame (see
+//!   [`flyd_core::perception::road`]): `x,y,z,fitness,ambiguity,u_left,v_left,used,residual`;
+//! - `flies.csv`: one fly a row, `x,y,z,fitness,warning,u_left,v_left,u_right,v_right,
+//!   raw_fitness,ambiguity` (metres, pixels; `fitness` is the value selection ranks by, after
+//!   the region of interest and sharing; `raw_fitness` before sharing, what `warning` is
+//!   computed from; `ambiguity` is the match's against nearby disparities on the last frame,
+//!   see [`flyd_core::engine::Engine::ambiguity`]; flies outside an image have empty
+//!   projections);
+//! - `overlay.png`: the left image with the best 250 flies as crosses (the paper's figures 5, 7);
+//! - `warnings.png`: each fly a spot as dark as its warning (figures 6, 8);
+//! - `trace.csv`: one row a generation (frame, global warning, road, obstacle, command, time);
+//! - `frames.csv`: the same columns, one row a frame (its last generation).
+//!
+//! It prints a JSON summary on stdout ([`Summary`]).
+//!
+//! This is a command at the edge: it reads files and the clock; perception does neither.
+
+pub mod feed;
+pub mod output;
+pub mod summary;
+
+pub use feed::{FrameFeed, PairFeed, SEQUENCE_LAYOUTS, ScenarioFeed, SequenceFeed};
+pub use output::{overlay, warning_map, write_flies_csv, write_outputs, write_trace_csv};
+pub use summary::{Alarms, FrameReport, Reaction, Summary, Timing};
+
+use crate::config::EvolutionConfig;
+use crate::mock::MockError;
+use flyd_core::calib::CalibError;
+use flyd_core::decision::{
+    Command, CommandReason, Decider, DecisionConfig, DecisionConfigError, DecisionInput,
+};
+use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
+use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::perception::{
+    CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
+};
+use image::RgbImage;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// Number of flies drawn on the overlay, as in the paper's figures.
+pub const OVERLAY_FLIES: usize = 250;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("{path}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}")]
+    Image {
+        path: String,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("calibration")]
+    Calibration(#[from] CalibError),
+    #[error(
+        "{which} image {image} is {got_w}x{got_h} but {calibration} describes a {want_w}x{want_h} camera"
+    )]
+    ImageSize {
+        which: &'static str,
+        image: String,
+        calibration: String,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("unknown scenario '{name}' (known: {known})")]
+    UnknownScenario { name: String, known: String },
+    #[error(
+        "{dir} holds no stereo sequence: expected the folders left/ and right/, or KITTI's \
+         image_02/data and image_03/data"
+    )]
+    SequenceLayout { dir: String },
+    #[error("{file} has no image of the same name in {dir}")]
+    SequenceUnpaired { file: String, dir: String },
+    #[error("{dir} holds no PNG or JPEG image")]
+    SequenceEmpty { dir: String },
+    #[error("hw-mock")]
+    Mock(#[from] MockError),
+    #[error("frame")]
+    Frame(#[from] FrameError),
+    #[error("engine")]
+    Engine(#[from] EngineError),
+    #[error("perception")]
+    Perception(#[from] PerceptionError),
+    #[error("decision")]
+    Decision(#[from] DecisionConfigError),
+}
+
+/// How a replay runs.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub params: EngineParams,
+    pub perception: PerceptionConfig,
+    pub decision: DecisionConfig,
+    /// The vehicle's speed the decision assumes, m/s.
+    pub speed: f64,
+    /// Generations to run.
+    pub generations: u64,
+    /// Generations per frame.
+    pub per_frame: u64,
+    /// Frames per second of the feed (the decider's clock).
+    pub fps: f64,
+    /// Generations before the decider takes input.
+    pub warmup_generations: u64,
+}
+
+/// Generations the daemon runs per frame of a video at `fps` that changes every frame (a
+/// camera's noise is enough): a burst of `burst_generations` on the new frame, then one per
+/// `generation_period` until the next (the generations' own time neglected).
+pub fn daemon_generations_per_frame(evolution: &EvolutionConfig, fps: f64) -> u64 {
+    let frame = if fps.is_finite() && fps > 0.0 {
+        1.0 / fps
+    } else {
+        return u64::from(evolution.burst_generations.max(1));
+    };
+    let periods = evolution
+        .generation_period
+        .filter(|p| !p.is_zero())
+        .map_or(0, |p| (frame / p.as_secs_f64()).floor() as u64);
+    (u64::from(evolution.burst_generations.max(1)) + periods.saturating_sub(1)).max(1)
+}
+
+/// One row of `trace.csv`: a generation.
+#[derive(Debug, Clone)]
+pub struct TraceRow {
+    pub frame: u64,
+    pub frame_name: String,
+    /// On the frames' clock.
+    pub time: Duration,
+    pub stats: GenerationStats,
+    pub road: RoadEstimate,
+    pub tracked: Tracked,
+    pub corridor: CorridorCounts,
+    pub command: Command,
+    pub reason: CommandReason,
+    /// Wall time of the whole step (both engines and the perception stage).
+    pub elapsed: Duration,
+    /// Of which the road fit and the obstacle stage.
+    pub stage: Duration,
+}
+
+/// A finished replay: perception as it ended, and one trace row per generation.
+pub struct Replay {
+    pub perception: Perception,
+    pub settings: Settings,
+    /// Every fly's match ambiguity on the last frame ([`flyd_core::engine::Engine::ambiguity`]).
+    pub ambiguity: Vec<f32>,
+    pub trace: Vec<TraceRow>,
+    /// The left image of the last frame.
+    pub left: RgbImage,
+    /// Frames shown.
+    pub frames: u64,
+}
+
+impl Replay {
+    /// The last row of each frame.
+    pub fn frame_ends(&self) -> impl Iterator<Item = &TraceRow> {
+        self.trace
+            .iter()
+            .enumerate()
+            .filter(|(i, r)| self.trace.get(i + 1).is_none_or(|n| n.frame != r.frame))
+            .map(|(_, r)| r)
+    }
+}
+
+/// Runs `settings.generations` generations of perception and the decision on `feed`, a new
+/// frame every `settings.per_frame` generations (the last frame stays once the feed has no
+/// more).
+pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, ReplayError> {
+    let mut perception = Perception::new(feed.rig(), settings.params.clone(), settings.perception)?
+        .with_warmup(settings.warmup_generations);
+    let mut decider = Decider::new(settings.decision)?;
+    let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
+    let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
+    let mut frame = StereoFrame::new(PreparedImage::new(w, h)?, PreparedImage::new(rw, rh)?, 0);
+    let mut left = RgbImage::new(w, h);
+    let per_frame = settings.per_frame.max(1);
+    let fps = if settings.fps.is_finite() && settings.fps > 0.0 {
+        settings.fps
+    } else {
+        10.0
+    };
+    let mut trace = Vec::with_capacity(usize::try_from(settings.generations).unwrap_or(0));
+    let mut index = None;
+    for g in 0..settings.generations {
+        let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
+        if index != Some(wanted) {
+            feed.load(wanted, &mut frame, &mut left)?;
+            frame.id = wanted;
+            index = Some(wanted);
+        }
+        // On the frames' clock: the generations of a frame spread over its period.
+        let time = Duration::from_secs_f64((g as f64 / per_frame as f64) / fps);
+        let t = Instant::now();
+        perception.evolve(&frame)?;
+        let observed = Instant::now();
+        let report = *perception.observe(&frame)?;
+        let (elapsed, stage) = (t.elapsed(), observed.elapsed());
+        let decision = if report.stats.generation > settings.warmup_generations {
+            let input = DecisionInput {
+                global_warning: report.stats.global_warning,
+                obstacle: report.tracked.confirmed().map(|o| o.distance),
+                ..DecisionInput::at_speed(None, settings.speed)
+            };
+            Some(decider.update(input, time))
+        } else {
+            None
+        };
+        trace.push(TraceRow {
+            frame: wanted,
+            frame_name: feed.frame_name(wanted),
+            time,
+            stats: report.stats,
+            road: report.road,
+            tracked: report.tracked,
+            corridor: report.corridor,
+            command: decision.map_or(decider.command(), |d| d.command),
+            reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
+            elapsed,
+            stage,
+        });
+    }
+    let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
+    Ok(Replay {
+        perception,
+        settings,
+        ambiguity,
+        trace,
+        left,
+        frames: index.map_or(0, |i| i + 1),
+    })
+}
+
+/// Every fly's ambiguity on `frame`, the engine's latest.
+fn all_ambiguities(engine: &mut Engine, frame: &StereoFrame) -> Result<Vec<f32>, EngineError> {
+    let mut ambiguity = vec![f32::INFINITY; engine.population().len()];
+    let all: Vec<u32> = (0..ambiguity.len() as u32).collect();
+    let chunk = engine.ambiguity_capacity().max(1);
+    for (flies, out) in all.chunks(chunk).zip(ambiguity.chunks_mut(chunk)) {
+        engine.ambiguity(frame, flies, out)?;
+    }
+    Ok(ambiguity)
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
+    move |source| ReplayError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Loads an image file as RGB8.
+pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
+    image::open(path)
+        .map(|i| i.to_rgb8())
+        .map_err(|source| ReplayError::Image {
+            path: path.display().to_string(),
+            source,
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flyd_core::perception::RoadEstimate;
+    use flyd_core::road::RoadPlane;
+
+    fn trace(warnings: &[f64], frames_from: u64) -> Vec<TraceRow> {
+        warnings
+            .iter()
+            .enumerate()
+            .map(|(g, &w)| TraceRow {
+                frame: frames_from + g as u64 / 3,
+                frame_name: String::new(),
+                time: Duration::ZERO,
+                stats: GenerationStats {
+                    generation: g as u64 + 1,
+                    global_warning: w,
+                    ..GenerationStats::default()
+                },
+                road: RoadEstimate::prior(RoadPlane::FLAT),
+                tracked: Tracked {
+                    obstacle: None,
+                    confirmed: false,
+                    seen_frames: 0,
+                },
+                corridor: CorridorCounts::default(),
+                command: if w >= 1.5 {
+                    Command::Stop
+                } else {
+                    Command::Clear
+                },
+                reason: CommandReason::Perception,
+                elapsed: Duration::ZERO,
+                stage: Duration::ZERO,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn reaction_counts_generations_from_the_first_that_saw_the_obstacle() {
+        // Frames 0..: 3 generations each; the obstacle at frame 2 = generation 7 (index 6).
+        let mut w = vec![0.05; 6];
+        w.extend([0.1, 0.6, 1.2, 2.0, 3.9, 4.0]);
+        w.extend(std::iter::repeat_n(4.0, 60));
+        let r = Reaction::of(&trace(&w, 0), 2, 0.5, 1.5).expect("long enough");
+        assert_eq!(r.appears_at_generation, 7);
+        assert_eq!(r.before, 0.05);
+        assert_eq!(r.settled, 4.0);
+        assert_eq!(r.slow_threshold_after, Some(2));
+        assert_eq!(r.stop_threshold_after, Some(4));
+        assert_eq!(r.stop_command_after, Some(4));
+        assert_eq!(r.half_settled_after, Some(4), "2.0 is half of 4.0");
+        assert!(
+            Reaction::of(&trace(&w[..30], 0), 2, 0.5, 1.5).is_none(),
+            "too short"
+        );
+        let never = Reaction::of(&trace(&[0.05; 80], 0), 2, 0.5, 1.5).expect("long enough");
+        assert_eq!(never.stop_threshold_after, None);
+        assert_eq!(never.stop_command_after, None);
+    }
+
+    #[test]
+    fn the_daemon_runs_a_burst_then_one_generation_a_period() {
+        let e = EvolutionConfig::default();
+        // 12 + 100 ms / 10 ms - 1 at 10 fps; 12 + 3 - 1 at 30 fps.
+        assert_eq!(daemon_generations_per_frame(&e, 10.0), 21);
+        assert_eq!(daemon_generations_per_frame(&e, 30.0), 14);
+        let back_to_back = EvolutionConfig {
+            generation_period: None,
+            ..EvolutionConfig::default()
+        };
+        assert_eq!(daemon_generations_per_frame(&back_to_back, 10.0), 12);
+    }
+
+    #[test]
+    fn alarms_count_perception_commands_after_the_warm_up() {
+        let mut t = trace(&[0.0, 2.0, 0.0, 2.0, 2.0, 0.0], 0);
+        t[4].reason = CommandReason::FaultFallback;
+        let a = Alarms::of(&t, 2);
+        assert_eq!((a.stop_generations, a.first_generation), (1, Some(4)));
+    }
+}
