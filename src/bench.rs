@@ -4,13 +4,16 @@
 //! different sensor noise alternate every `generations_per_frame` generations, so the figures
 //! include the full re-evaluation a new frame costs, in the proportion the daemon sees it
 //! (a pair every 3 generations at 30 fps and ~10 ms a generation). Frames are rendered and
-//! prepared before timing starts: only `Engine::step` is timed.
+//! prepared before timing starts. Each generation runs [`Perception::evolve`] (the engine's
+//! generation: what `all`, `new_frame` and `same_frame` time), then the road measurement
+//! (on a new frame: `road`) and the obstacle stage (`obstacle`), each timed apart.
 
 use crate::mock::MockStereo;
 use crate::replay::Timing;
-use flyd_core::engine::{Engine, EngineParams, phase};
+use flyd_core::engine::{EngineParams, phase};
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::isa::Isa;
+use flyd_core::perception::{Perception, PerceptionConfig};
 use serde::Serialize;
 use std::time::{Duration, Instant};
 
@@ -24,6 +27,8 @@ pub struct GenerationBench {
     pub generations_per_frame: u64,
     /// Instruction set of the hot loops; the best this CPU has when `None`.
     pub isa: Option<Isa>,
+    /// The perception stages timed after each generation.
+    pub perception: PerceptionConfig,
 }
 
 /// Timing of generations, microseconds.
@@ -44,6 +49,15 @@ pub struct GenerationReport {
     pub same_frame: Timing,
     /// Flies evaluated per second over the run.
     pub flies_per_second: f64,
+    /// The obstacle stage after each generation ([`Perception::find_obstacle`]).
+    pub obstacle: Timing,
+    /// Its total time over the generations' total: what it adds to a generation.
+    pub obstacle_share: f64,
+    /// The road measurement on each new frame's first generation
+    /// ([`Perception::measure_road`]; nothing on the others).
+    pub road: Timing,
+    /// Its total time over the generations' total.
+    pub road_share: f64,
     /// Median microseconds a generation in each step (built with `--features phase-timers`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub phases_us: Option<Vec<(&'static str, f64)>>,
@@ -72,6 +86,19 @@ impl std::fmt::Display for GenerationReport {
                 t.median_us, t.min_us, t.max_us, t.p95_us
             )?;
         }
+        for (name, t, share) in [
+            ("obstacle", &self.obstacle, self.obstacle_share),
+            ("road/frame", &self.road, self.road_share),
+        ] {
+            writeln!(
+                f,
+                "  {name:<10} median {:8.1} us  p95 {:8.1} us  max {:8.1} us: {:.1} % of the generations' time",
+                t.median_us,
+                t.p95_us,
+                t.max_us,
+                100.0 * share
+            )?;
+        }
         write!(
             f,
             "  {:.3e} flies evaluated per second",
@@ -98,6 +125,8 @@ pub enum BenchError {
     Frame(#[from] flyd_core::frame::FrameError),
     #[error("the engine")]
     Engine(#[from] flyd_core::engine::EngineError),
+    #[error("perception")]
+    Perception(#[from] flyd_core::perception::PerceptionError),
 }
 
 /// The scene the benchmark renders.
@@ -120,15 +149,17 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
         flies: cfg.flies,
         ..EngineParams::default()
     };
-    let mut engine = Engine::new(mock.rig(), params)?;
+    let warmup = 50;
+    let mut perception = Perception::new(mock.rig(), params, cfg.perception)?.with_warmup(warmup);
     if let Some(isa) = cfg.isa {
-        engine.set_isa(isa);
+        perception.engine_mut().set_isa(isa);
     }
     let k = cfg.generations_per_frame.max(1);
-    let warmup = 50;
     let (mut all, mut new, mut same) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut obstacle, mut road) = (Vec::new(), Vec::new());
     let mut evaluated = 0usize;
-    let mut total = Duration::ZERO;
+    let (mut total, mut obstacle_total, mut road_total) =
+        (Duration::ZERO, Duration::ZERO, Duration::ZERO);
     let mut phases: Vec<Vec<Duration>> = vec![Vec::new(); phase::Phase::ALL.len()];
     for g in 0..warmup + cfg.generations {
         if g == warmup {
@@ -136,11 +167,23 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
         }
         let frame = &frames[((g / k) % 2) as usize];
         let t = Instant::now();
-        let stats = engine.step(frame)?;
+        let stats = perception.evolve(frame)?;
         let dt = t.elapsed();
+        let t = Instant::now();
+        perception.measure_road(frame)?;
+        let dr = t.elapsed();
+        let t = Instant::now();
+        perception.find_obstacle(frame)?;
+        let dob = t.elapsed();
         if g >= warmup {
             all.push(dt);
+            obstacle.push(dob);
             total += dt;
+            obstacle_total += dob;
+            road_total += dr;
+            if stats.new_frame {
+                road.push(dr);
+            }
             evaluated += stats.evaluated;
             if let Some(p) = phase::take() {
                 for (k, &(_, ns)) in p.iter().enumerate() {
@@ -166,12 +209,16 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
         width: cfg.width,
         height: cfg.height,
         generations: cfg.generations,
-        isa: engine.isa().name(),
+        isa: perception.engine().isa().name(),
         generations_per_frame: k,
         all: Timing::of(&mut all),
         new_frame: Timing::of(&mut new),
         same_frame: Timing::of(&mut same),
         flies_per_second: evaluated as f64 / total.as_secs_f64().max(1e-9),
+        obstacle: Timing::of(&mut obstacle),
+        obstacle_share: obstacle_total.as_secs_f64() / total.as_secs_f64().max(1e-9),
+        road: Timing::of(&mut road),
+        road_share: road_total.as_secs_f64() / total.as_secs_f64().max(1e-9),
         phases_us,
     })
 }

@@ -61,6 +61,9 @@ struct BenchArgs {
     /// has; every one gives the same population).
     #[arg(long, value_parser = parse_isa)]
     isa: Option<flyd_core::isa::Isa>,
+    /// Take [perception] from this daemon configuration (default: the built-in defaults).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Instead: reaction time of the whole threaded daemon on hw-mock (config/demo.toml), from
     /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
     #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
@@ -270,6 +273,10 @@ fn bench_command(args: BenchArgs) -> Result<()> {
         generations: args.generations,
         generations_per_frame: args.generations_per_frame,
         isa: args.isa,
+        perception: match &args.config {
+            Some(path) => config::check(path)?.perception,
+            None => flyd_core::perception::PerceptionConfig::default(),
+        },
     })?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

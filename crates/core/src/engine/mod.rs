@@ -255,7 +255,11 @@ impl Engine {
                 AMBIGUITY_FLIES,
                 rig.right.intrinsics().fx * rig.baseline(),
             ),
-            sweeps: Sweeps::new(SWEEP_POINTS, rig.right.intrinsics().fx * rig.baseline()),
+            sweeps: Sweeps::new(
+                SWEEP_POINTS,
+                setup.sampler.blocks.len(),
+                rig.right.intrinsics().fx * rig.baseline(),
+            ),
             frame_size: (w, h, rig.right.width(), rig.right.height()),
             road: RoadPlane::FLAT,
             frame_id: None,

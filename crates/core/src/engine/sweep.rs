@@ -61,15 +61,19 @@ pub(super) struct Sweeps {
     batch: Population,
     /// Per ray: normalised left coordinates, inverse-depth span.
     rays: Vec<[f32; 4]>,
+    /// Blocks whose centre ray crosses the band (indices into the sampler's blocks).
+    eligible: Vec<u32>,
     pixels_per_inverse_depth: f32,
 }
 
 impl Sweeps {
-    /// Room for `points` probes at a time, for a rig of `pixels_per_inverse_depth` = f B.
-    pub(super) fn new(points: usize, pixels_per_inverse_depth: f64) -> Self {
+    /// Room for `points` probes at a time over `blocks` blocks of the left image, for a rig
+    /// of `pixels_per_inverse_depth` = f B.
+    pub(super) fn new(points: usize, blocks: usize, pixels_per_inverse_depth: f64) -> Self {
         Self {
             batch: Population::with_len(points),
             rays: Vec::with_capacity(points / REFINE),
+            eligible: Vec::with_capacity(blocks),
             pixels_per_inverse_depth: pixels_per_inverse_depth as f32,
         }
     }
@@ -106,26 +110,28 @@ impl Engine {
             let mid = sampler.at(xn, yn, 1.0 / lerp(span, 0.5));
             (mid[0].abs() <= half).then_some(span)
         };
-        let blocks = &sampler.blocks;
-        let n = blocks.iter().filter(|b| eligible(b).is_some()).count();
+        // The eligible blocks, once; then `k` of them evenly, each through its strongest
+        // gradient.
+        s.eligible.clear();
+        s.eligible.extend(
+            sampler
+                .blocks
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| eligible(b).is_some())
+                .map(|(i, _)| i as u32),
+        );
+        let n = s.eligible.len();
         if n == 0 || wanted == 0 {
             return Ok(());
         }
         let kernel = Kernel::new(frame, &self.setup.params, &RoadPlane::FLAT).without_roi();
-        // The rays: the j-th of k evenly spread eligible blocks, through its strongest gradient.
         s.rays.clear();
         let k = wanted.min(n);
-        let mut next = 0;
-        for (seen, b) in blocks
-            .iter()
-            .filter_map(|b| Some((b, eligible(b)?)))
-            .enumerate()
-        {
-            if next == k || seen != next * n / k {
+        for j in 0..k {
+            let Some(b) = sampler.blocks.get(s.eligible[j * n / k] as usize) else {
                 continue;
-            }
-            next += 1;
-            let (b, _) = b;
+            };
             let mut best = (0u8, (b[0] + b[1]) / 2.0, (b[2] + b[3]) / 2.0);
             for (fx, fy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
                 let (xn, yn) = (lerp((b[0], b[1]), fx), lerp((b[2], b[3]), fy));

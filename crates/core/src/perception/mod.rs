@@ -183,14 +183,28 @@ impl Perception {
     }
 
     /// After [`Perception::evolve`] on `frame`: on a new frame, measures the road (both engines
-    /// take it for their next generation); when due, looks for the obstacle.
+    /// take it for their next generation); when due, looks for the obstacle
+    /// ([`Perception::measure_road`] then [`Perception::find_obstacle`]).
     pub fn observe(&mut self, frame: &StereoFrame) -> Result<&PerceptionReport, EngineError> {
-        let stats = self.report.stats;
-        if self.config.road.enabled && stats.new_frame {
+        self.measure_road(frame)?;
+        self.find_obstacle(frame)
+    }
+
+    /// After [`Perception::evolve`] on `frame`: the road, measured on a new frame's first
+    /// generation (the engine takes it for its next generation); kept otherwise.
+    pub fn measure_road(&mut self, frame: &StereoFrame) -> Result<&RoadEstimate, EngineError> {
+        if self.config.road.enabled && self.report.stats.new_frame {
             let road = self.road.update(&mut self.engine, frame)?;
             self.engine.set_road(road.plane);
             self.report.road = road;
         }
+        Ok(&self.report.road)
+    }
+
+    /// After [`Perception::measure_road`]: when due (each new frame's first generation and
+    /// every `estimate_every`-th, after the warm-up), the obstacle stage and its debounce.
+    pub fn find_obstacle(&mut self, frame: &StereoFrame) -> Result<&PerceptionReport, EngineError> {
+        let stats = self.report.stats;
         let every = u64::from(self.config.estimate_every.max(1));
         let due = stats.new_frame || stats.generation.is_multiple_of(every);
         if due && stats.generation > self.warmup {

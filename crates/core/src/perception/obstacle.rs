@@ -5,8 +5,10 @@
 //!    sharing) inside the corridor: `|x| <= corridor_half_width`, `min_height..=max_height`
 //!    above the measured road, at most `max_distance` ahead. Flies on the road, above the
 //!    vehicle or off the corridor are no obstacle.
-//! 2. **A sample** of at most `candidates` of them, evenly spread over the population's order
-//!    (which is unrelated to position or fitness): the fittest flies are not the ones to take.
+//! 2. **A sample** of them, met in a fixed stride order over the population (unrelated to
+//!    position or fitness), until `candidates` needed a measurement: a fly measured on this
+//!    frame that has not moved since (a survivor) is taken from a memo at no cost, so the
+//!    sample holds up to 4 x `candidates` flies. The fittest flies are not the ones to take.
 //!    The paper's fitness rewards gradients, and the strongest gradients are the horizontal
 //!    edges (a head's top, a roof, a bumper) whose match is the most ambiguous: on hw-mock's
 //!    pedestrian the 200 fittest corridor flies were all ambiguous while 72 % of the corridor
@@ -107,7 +109,7 @@ impl Default for ObstacleConfig {
             min_height: 0.3,
             max_height: 2.0,
             max_distance: 40.0,
-            candidates: 256,
+            candidates: 128,
             max_ambiguity: 0.5,
             min_flies: 8,
             cluster_disparity_px: 2.0,
@@ -237,7 +239,7 @@ pub struct Obstacle {
 /// traces).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct CorridorCounts {
-    /// Flies in the corridor (step 1).
+    /// Flies in the corridor (step 1), estimated from the share of the population scanned.
     pub candidates: usize,
     /// Of which measured (step 2).
     pub sampled: usize,
@@ -251,9 +253,18 @@ pub struct ObstacleFinder {
     config: ObstacleConfig,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
-    corridor: Vec<u32>,
     sample: Vec<u32>,
     ambiguity: Vec<f32>,
+    /// Per fly of the population: the position (bits) its ambiguity was measured at on frame
+    /// `memo_frame`, and that ambiguity. A fly that survived selection unmoved on the same
+    /// frame has the same ambiguity: it is not measured again (about half the sample in a
+    /// generation on a static scene).
+    memo: Vec<([u32; 3], f32)>,
+    memo_frame: u64,
+    /// The sampled flies not in the memo, where they are in the sample, their ambiguities.
+    todo: Vec<u32>,
+    todo_at: Vec<u32>,
+    todo_out: Vec<f32>,
     /// (depth, left-image cell, index) of the unique flies.
     unique: Vec<Unique>,
     scratch: Vec<f32>,
@@ -273,6 +284,9 @@ pub struct ObstacleFinder {
 /// edge (see the module docs, step 4).
 const MIN_WIDTH_PX: f32 = 4.0;
 
+/// The sample holds at most this many flies per `candidates` (the rest from the memo).
+const SAMPLE_PER_CANDIDATE: usize = 4;
+
 /// Clusters verified along the line per estimate, at most.
 pub const MAX_VERIFIED: usize = 3;
 
@@ -283,15 +297,19 @@ impl ObstacleFinder {
         Self {
             config,
             pixels_per_inverse_depth,
-            corridor: Vec::with_capacity(flies),
-            sample: Vec::with_capacity(k),
-            ambiguity: vec![0.0; k],
-            unique: Vec::with_capacity(k),
-            scratch: Vec::with_capacity(k),
-            cells: Vec::with_capacity(k),
+            sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
+            ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
+            memo: vec![([u32::MAX; 3], f32::NAN); flies],
+            memo_frame: u64::MAX,
+            todo: Vec::with_capacity(k),
+            todo_at: Vec::with_capacity(k),
+            todo_out: vec![0.0; k],
+            unique: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
+            scratch: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
+            cells: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             counts: CorridorCounts::default(),
-            members: Vec::with_capacity(k),
-            verify: Vec::with_capacity(k),
+            members: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
+            verify: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             verify_out: vec![0.0; 32],
             verdicts: [(u64::MAX, 0.0, 0.0, false); MAX_VERIFIED * 2],
             verdict_next: 0,
@@ -317,7 +335,6 @@ impl ObstacleFinder {
     ) -> Result<Option<Obstacle>, EngineError> {
         let c = self.config;
         let pop = engine.population();
-        self.corridor.clear();
         let (half, lo, hi, far) = (
             c.corridor_half_width as f32,
             c.min_height as f32,
@@ -325,7 +342,26 @@ impl ObstacleFinder {
             c.max_distance as f32,
         );
         let [r0, rz, rx] = road.coefficients();
-        self.corridor.extend((0..pop.len()).filter_map(|i| {
+        // The sample: the corridor flies met in a stride order over the population (a fixed
+        // permutation unrelated to position or fitness), until `candidates` of them needed a
+        // measurement. A fly measured on this frame that has not moved since (a survivor) is
+        // taken from the memo at no cost, so the sample grows over a frame's generations.
+        // Scanning stops there: a full pass over 5000 flies cost ~25 us, more than the rest.
+        let len = pop.len();
+        if self.memo_frame != frame.id || self.memo.len() < len {
+            self.memo_frame = frame.id;
+            self.memo.clear();
+            self.memo.resize(len, ([u32::MAX; 3], f32::NAN));
+        }
+        let stride = stride_for(len);
+        let wanted = c.candidates.min(engine.ambiguity_capacity());
+        let most = self.ambiguity.len();
+        self.sample.clear();
+        self.todo.clear();
+        self.todo_at.clear();
+        let mut i = 0usize;
+        let mut scanned = 0;
+        while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
             let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
             let h = y - (r0 + rz * z + rx * x);
             let inside = pop.raw_fitness[i] > 0.0
@@ -333,15 +369,23 @@ impl ObstacleFinder {
                 && (lo..=hi).contains(&h)
                 && z > 0.0
                 && z <= far;
-            inside.then_some(i as u32)
-        }));
-        let n = self.corridor.len();
-        let k = c.candidates.min(engine.ambiguity_capacity()).min(n);
-        self.sample.clear();
-        // Evenly spread over the corridor flies, in population order.
-        self.sample
-            .extend((0..k).map(|j| self.corridor[j * n / k.max(1)]));
-        let measured = engine.ambiguity(frame, &self.sample, &mut self.ambiguity[..k])?;
+            if inside {
+                let (at, a) = self.memo[i];
+                if at == [x.to_bits(), y.to_bits(), z.to_bits()] {
+                    self.ambiguity[self.sample.len()] = a;
+                } else {
+                    self.todo.push(i as u32);
+                    self.todo_at.push(self.sample.len() as u32);
+                }
+                self.sample.push(i as u32);
+            }
+            scanned += 1;
+            i = (i + stride) % len;
+        }
+        let k = self.sample.len();
+        // Corridor flies in the population, estimated from the scanned share.
+        let n = (k * len).checked_div(scanned).unwrap_or(0);
+        let measured = self.measure(engine, frame)?;
         let pop = engine.population();
         let cell_px = c.cell_px.max(1) as f32;
         let cell_of = |i: usize| {
@@ -426,6 +470,29 @@ impl ObstacleFinder {
 }
 
 impl ObstacleFinder {
+    /// The ambiguities of the sample's flies not in the memo (`todo`) into `ambiguity` and
+    /// the memo; how many of the sample have one.
+    fn measure(&mut self, engine: &mut Engine, frame: &StereoFrame) -> Result<usize, EngineError> {
+        let n = self.todo.len();
+        let measured = engine.ambiguity(frame, &self.todo, &mut self.todo_out[..n])?;
+        let pop = engine.population();
+        for ((&i, &j), &a) in self
+            .todo
+            .iter()
+            .zip(&self.todo_at)
+            .zip(&self.todo_out[..measured])
+        {
+            self.ambiguity[j as usize] = a;
+            let i = i as usize;
+            self.memo[i] = (
+                [pop.x[i].to_bits(), pop.y[i].to_bits(), pop.z[i].to_bits()],
+                a,
+            );
+        }
+        // The sample is at most the engine's capacity: every fly was measured.
+        Ok(if measured == n { self.sample.len() } else { 0 })
+    }
+
     /// Whether the cluster in `members` holds up along the epipolar line (see the module
     /// docs, step 5); the verdict is kept for the frame.
     fn genuine(&mut self, engine: &mut Engine, frame: &StereoFrame) -> Result<bool, EngineError> {
@@ -471,6 +538,25 @@ impl ObstacleFinder {
     }
 }
 
+/// A step through `0..len` that visits every index once before repeating (coprime to it) and
+/// jumps far, so that consecutive flies of the population (offspring of the same parents) are
+/// not taken together.
+fn stride_for(len: usize) -> usize {
+    const PRIMES: [usize; 4] = [7919, 7907, 7901, 7883];
+    if len <= 1 {
+        return 1;
+    }
+    PRIMES
+        .iter()
+        .map(|&p| p % len)
+        .find(|&p| p != 0 && gcd(p, len) == 1)
+        .unwrap_or(1)
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 { a } else { gcd(b, a % b) }
+}
+
 /// The median absolute deviation of `v` (reordered); 0 when empty.
 fn mad(v: &mut [f32]) -> f32 {
     if v.is_empty() {
@@ -510,6 +596,9 @@ fn nearest_cluster(
 ) -> Option<(usize, usize)> {
     let mut to = 0;
     let width = c.cluster_width as f32;
+    // Windows anchored within half a window of one already tested overlap it mostly: the
+    // next tested one starts half a window on (one test per half window, not per fly).
+    let mut next_anchor = f32::MIN;
     for (from, u) in unique.iter().enumerate() {
         let z = f64::from(u.z);
         let depth =
@@ -519,9 +608,10 @@ fn nearest_cluster(
         while to < unique.len() && unique[to].z <= end {
             to += 1;
         }
-        if to - from < c.min_flies {
+        if to - from < c.min_flies || u.z < next_anchor {
             continue;
         }
+        next_anchor = (z + depth / 2.0) as f32;
         // Laterally: the most flies within `cluster_width` of one another.
         members.clear();
         members.extend_from_slice(&unique[from..to]);
@@ -668,6 +758,23 @@ mod tests {
         // Near the vehicle, at least min_cluster_depth.
         assert_eq!(cluster(&flies(&[2.0, 2.09]), &c), Some(vec![0, 1]));
         assert_eq!(cluster(&flies(&[2.0, 2.11]), &c), None);
+    }
+
+    #[test]
+    fn the_stride_visits_every_fly_once() {
+        for len in [1, 2, 16, 5000, 7919, 7919 * 2, 15838 * 7907] {
+            let stride = stride_for(len);
+            assert_eq!(gcd(stride, len), 1, "{len}: stride {stride}");
+        }
+        let len = 5000;
+        let stride = stride_for(len);
+        let mut seen = vec![false; len];
+        let mut i = 0;
+        for _ in 0..len {
+            assert!(!seen[i], "{i} twice");
+            seen[i] = true;
+            i = (i + stride) % len;
+        }
     }
 
     #[test]
