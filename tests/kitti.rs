@@ -5,7 +5,8 @@
 //!   SLOW or STOP after the warm-up, no obstacle reported nearer than 20 m.
 //! - The flies an obstacle is built from (unique matches, the 250 fittest of them) agree with
 //!   the LiDAR truth, and with OpenCV's SGBM at the same pixels when OpenCV is installed
-//!   (scripts/prereqs puts it in target/py; without it that comparison prints SKIP).
+//!   (scripts/prereqs puts it in target/py; without it that comparison prints SKIP, and fails
+//!   when `FLYD_REQUIRE_SGBM` is set, as scripts/test does).
 //! - On the sequence the yellow car crossing into the corridor on its last frame is seen
 //!   within 10 % of its distance (13.8 m, from SGBM on the car's front; docs/perception.md).
 //!
@@ -227,6 +228,11 @@ fn the_flies_obstacles_are_built_from_agree_with_the_lidar_truth() {
         );
     }
     if sgbm_missing {
+        // scripts/test installs OpenCV and sets this: there a missing SGBM is a failure.
+        assert!(
+            std::env::var_os("FLYD_REQUIRE_SGBM").is_none(),
+            "FLYD_REQUIRE_SGBM is set but OpenCV SGBM could not run (target/py)"
+        );
         println!(
             "SKIP: the comparison with OpenCV SGBM (no OpenCV in target/py: run scripts/prereqs, \
              or set FLYD_TEST_PYTHON); the truth checks above ran"
