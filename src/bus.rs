@@ -617,6 +617,7 @@ mod tests {
             state: State::Running,
             faults: flyd_core::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
+            sensor: flyd_core::sensor::SensorFaults::empty(),
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,
             cam_fps_right: 30.0,

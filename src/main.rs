@@ -223,6 +223,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         generations,
         per_frame,
         fps,
+        sensor: config.sensor,
         warmup_generations: config.evolution.warmup_generations,
     };
     let run = replay::run(feed.as_mut(), settings).context("replay")?;

@@ -17,6 +17,7 @@ use flyd_core::can::crc::e2e_crc;
 use flyd_core::can::messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, MessageConfig};
 use flyd_core::decision::{Command, CommandReason};
+use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
 fn load() -> Dbc {
@@ -130,6 +131,7 @@ fn status_case(msg: StatusMsg, c: u8) -> Case {
         ("State", Want::Named(msg.state.name())),
         ("FaultBits", Want::Phys(f64::from(msg.faults.bits()))),
         ("PerceptionAgeMs", Want::Phys(age)),
+        ("SensorFaults", Want::Phys(f64::from(msg.sensor.bits()))),
         ("GenerationsPerSec", Want::Phys(msg.generations_per_sec)),
         ("CamFpsLeft", Want::Phys(msg.cam_fps_left)),
         ("CamFpsRight", Want::Phys(msg.cam_fps_right)),
@@ -197,6 +199,7 @@ fn cases() -> Vec<Case> {
                 state: State::Degraded,
                 faults: FaultBits::LEFT_CAMERA_STALE | FaultBits::CAN_TX_ERROR,
                 perception_age: Duration::from_millis(1234),
+                sensor: SensorFaults::UNIFORM | SensorFaults::BLIND,
                 generations_per_sec: 118.0,
                 cam_fps_left: 29.5,
                 cam_fps_right: 30.0,
@@ -207,7 +210,8 @@ fn cases() -> Vec<Case> {
             StatusMsg {
                 state: State::Shutdown,
                 faults: FaultBits::all(),
-                perception_age: Duration::from_millis(65535),
+                perception_age: Duration::from_millis(4095),
+                sensor: SensorFaults::from_bits(0x0F),
                 generations_per_sec: 510.0,
                 cam_fps_left: 127.5,
                 cam_fps_right: 0.5,
@@ -219,6 +223,7 @@ fn cases() -> Vec<Case> {
                 state: State::Init,
                 faults: FaultBits::SNAPSHOT_STALE,
                 perception_age: Duration::from_millis(7),
+                sensor: SensorFaults::FROZEN,
                 generations_per_sec: 2.0,
                 cam_fps_left: 0.0,
                 cam_fps_right: 15.0,
@@ -542,6 +547,7 @@ fn status_with(f: impl FnOnce(&mut StatusMsg)) -> [u8; 8] {
         state: State::Running,
         faults: FaultBits::empty(),
         perception_age: Duration::from_millis(20),
+        sensor: SensorFaults::empty(),
         generations_per_sec: 100.0,
         cam_fps_left: 30.0,
         cam_fps_right: 30.0,

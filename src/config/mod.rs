@@ -18,6 +18,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::capture::CaptureFormat;
+pub use crate::daemon::mock_camera::{FaultCamera, FaultKind, MAX_MOCK_FAULTS, MockFault};
 use flyd_core::calib::{self, CalibError};
 use flyd_core::can::CanConfig;
 use flyd_core::decision::Command;
@@ -25,6 +26,7 @@ use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
 use flyd_core::engine::{Engine, EngineError, EngineParams};
 use flyd_core::geometry::StereoRig;
 use flyd_core::perception::PerceptionConfig;
+use flyd_core::sensor::SensorConfig;
 use flyd_core::status::FaultBits;
 
 /// Why a configuration cannot be used.
@@ -81,12 +83,16 @@ impl ConfigError {
 // The resolved configuration
 
 /// Where the frames come from.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum CameraSource {
     /// Two V4L2 devices.
     Devices { left: PathBuf, right: PathBuf },
-    /// A hw-mock scenario rendered for both cameras (`mock = "pedestrian-steps-in"`).
-    Mock { scenario: String },
+    /// A hw-mock scenario rendered for both cameras (`mock = "pedestrian-steps-in"`), with
+    /// the faults to inject (`[[cameras.mock_faults]]`).
+    Mock {
+        scenario: String,
+        faults: Vec<MockFault>,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -256,6 +262,8 @@ pub struct DaemonConfig {
     pub decision: DecisionConfig,
     pub perception: PerceptionConfig,
     pub vehicle: VehicleConfig,
+    /// The sensor checks' thresholds (`[sensor]`).
+    pub sensor: SensorConfig,
     pub evolution: EvolutionConfig,
     pub control: ControlConfig,
     pub can: CanSection,
@@ -272,6 +280,7 @@ impl DaemonConfig {
             cameras: CamerasConfig {
                 source: CameraSource::Mock {
                     scenario: "in-code".into(),
+                    faults: Vec::new(),
                 },
                 width,
                 height,
@@ -285,6 +294,7 @@ impl DaemonConfig {
             decision: DecisionConfig::default(),
             perception: PerceptionConfig::default(),
             vehicle: VehicleConfig::default(),
+            sensor: SensorConfig::default(),
             evolution: EvolutionConfig::default(),
             control: ControlConfig::default(),
             can: CanSection {

@@ -28,6 +28,8 @@ pub(super) struct RawConfig {
     #[serde(default)]
     vehicle: RawVehicle,
     #[serde(default)]
+    sensor: SensorConfig,
+    #[serde(default)]
     evolution: RawEvolution,
     #[serde(default)]
     control: RawControl,
@@ -51,6 +53,8 @@ struct RawCameras {
     timestamp_tolerance_ms: f64,
     #[serde(default = "default_stale_frames")]
     stale_frames: u32,
+    #[serde(default)]
+    mock_faults: Vec<MockFault>,
 }
 
 fn default_pixel_format() -> CaptureFormat {
@@ -261,6 +265,12 @@ impl RawConfig {
             return bad(&format!("perception.{}", e.key), e.reason);
         }
         let vehicle = self.vehicle.resolve()?;
+        if let Err(e) = self.sensor.validate() {
+            return bad(
+                &format!("sensor.{}", e.key),
+                format!("must be within {}", e.range),
+            );
+        }
         let control = self.control.resolve()?;
         let can = self.can.resolve(base)?;
         let logging = self.logging.resolve()?;
@@ -280,6 +290,7 @@ impl RawConfig {
             decision,
             perception: self.perception,
             vehicle,
+            sensor: self.sensor,
             evolution,
             control,
             can,
@@ -314,9 +325,32 @@ impl RawCameras {
                     }
                     Some(_) => {}
                 }
-                CameraSource::Mock { scenario }
+                if self.mock_faults.len() > MAX_MOCK_FAULTS {
+                    return bad(
+                        "cameras.mock_faults",
+                        format!(
+                            "at most {MAX_MOCK_FAULTS} faults, got {}",
+                            self.mock_faults.len()
+                        ),
+                    );
+                }
+                for (i, f) in self.mock_faults.iter().enumerate() {
+                    if let Err(reason) = f.check() {
+                        return bad(&format!("cameras.mock_faults[{i}]"), reason);
+                    }
+                }
+                CameraSource::Mock {
+                    scenario,
+                    faults: self.mock_faults,
+                }
             }
             (Some(left), Some(right), None) => {
+                if !self.mock_faults.is_empty() {
+                    return bad(
+                        "cameras.mock_faults",
+                        "faults are injected into mock cameras only (cameras.mock)",
+                    );
+                }
                 if left == right {
                     return bad("cameras.right", "must be another device than cameras.left");
                 }

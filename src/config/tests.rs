@@ -270,3 +270,44 @@ fn damaged_config_files_are_errors_naming_the_file_never_a_panic() {
         "{loaded} loaded, {refused} refused"
     );
 }
+
+/// The `[sensor]` keys config/flyd.toml documents (commented out) are the defaults, and each
+/// bound it states is enforced.
+#[test]
+fn sensor_table_documents_its_defaults_and_bounds() {
+    let doc = include_str!("../../config/flyd.toml");
+    let section = doc
+        .split("\n[sensor]\n")
+        .nth(1)
+        .and_then(|s| s.split("\n[").next())
+        .expect("a [sensor] table in config/flyd.toml");
+    // `# key = number` lines: the documented defaults.
+    let keys: Vec<&str> = section
+        .lines()
+        .filter_map(|l| l.strip_prefix("# "))
+        .filter(|l| {
+            l.split_once(" = ").is_some_and(|(k, v)| {
+                k.chars().all(|c| c.is_ascii_lowercase() || c == '_') && v.parse::<f64>().is_ok()
+            })
+        })
+        .collect();
+    assert_eq!(keys.len(), 8, "{keys:?}");
+    let c = parse(&with("sensor", &keys.join("\n"))).expect("the documented values parse");
+    assert_eq!(c.sensor, SensorConfig::default());
+    for (key, bad) in [
+        ("min_contrast", "0.1"),
+        ("min_textured", "0.9"),
+        ("frozen_unchanged", "1.5"),
+        ("frozen_frames", "0"),
+        ("mismatch_mean", "1e300"),
+        ("mismatch_contrast", "1"),
+        ("raise_frames", "31"),
+        ("clear_frames", "0"),
+    ] {
+        check_err(
+            &with("sensor", &format!("{key} = {bad}")),
+            &format!("sensor.{key}"),
+            "must be within",
+        );
+    }
+}

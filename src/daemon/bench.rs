@@ -60,7 +60,7 @@ pub fn bench_end_to_end_with(
     config: &DaemonConfig,
     runs: usize,
 ) -> Result<BenchReport, DaemonError> {
-    let CameraSource::Mock { scenario } = &config.cameras.source else {
+    let CameraSource::Mock { scenario, .. } = &config.cameras.source else {
         return Err(DaemonError::BenchScenario(
             "the configuration has real cameras (set cameras.mock)".into(),
         ));
@@ -118,7 +118,7 @@ const GUARD: Duration = Duration::from_secs(60);
 fn one_run(config: &DaemonConfig, scenario: &str) -> Result<Outcome, DaemonError> {
     let clock: SharedClock = MonotonicClock::shared();
     let (w, h) = (config.cameras.width, config.cameras.height);
-    let (left, right, truth) = mock_cameras(scenario, w, h, &clock)?;
+    let (left, right, truth) = mock_cameras(scenario, w, h, &clock, &[])?;
     if truth.first_obstacle_frame().is_none() {
         return Err(DaemonError::BenchScenario(format!(
             "scenario {scenario} has none"

@@ -52,6 +52,7 @@ use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
 use flyd_core::perception::RoadSource;
+use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
@@ -149,6 +150,8 @@ struct Loop {
     /// The worst snapshot since the last command (see the module docs).
     worst_since_command: Option<DecisionInput>,
     faults: FaultBits,
+    /// The sensor faults behind CAMERA_ERROR, as the status frame reports them.
+    sensor: SensorFaults,
     state: State,
     command: Command,
     can_failing: bool,
@@ -172,6 +175,7 @@ impl<B: CanBus> ControlThread<B> {
             latest_at: None,
             worst_since_command: None,
             faults: FaultBits::empty(),
+            sensor: SensorFaults::empty(),
             state: State::Init,
             command: self.decider.command(),
             can_failing: false,
@@ -289,7 +293,7 @@ impl<B: CanBus> ControlThread<B> {
             snapshot_at: s.latest_at,
             skew_fault: s.latest.is_some_and(|l| l.skew_fault),
             overrun: s.latest.is_some_and(|l| l.overrun),
-            blind: s.latest.is_some_and(|l| l.blind),
+            sensor: s.latest.map_or(SensorFaults::empty(), |l| l.sensor),
             can_failing: s.can_failing,
         };
         let faults = self.monitor.evaluate(&observation);
@@ -312,6 +316,7 @@ impl<B: CanBus> ControlThread<B> {
         }
         s.report.faults_seen |= faults;
         s.faults = faults;
+        s.sensor = observation.sensor;
         let state = self.monitor.state(faults);
         if state != s.state {
             tracing::info!(from = %s.state, to = %state, faults = %faults, "state changed");
@@ -385,6 +390,7 @@ impl<B: CanBus> ControlThread<B> {
             perception_age: s
                 .latest
                 .map_or(Duration::MAX, |l| now.saturating_sub(l.capture_time())),
+            sensor: s.sensor,
             generations_per_sec: s.gen_rate.rate(),
             cam_fps_left: s.left_fps.rate(),
             cam_fps_right: s.right_fps.rate(),

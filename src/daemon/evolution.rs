@@ -35,6 +35,7 @@ use crate::source::FrameMeta;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
 use flyd_core::perception::{Perception, RoadEstimate, RoadSource};
+use flyd_core::sensor::{ImageHealth, SensorFaults, SensorMonitor, SensorVerdict};
 
 /// Counters the control thread reads (statistics, `Relaxed`).
 #[derive(Debug, Default)]
@@ -60,6 +61,8 @@ pub struct EvolutionThread {
     pub stop: Shutdown,
     /// The road estimate's source at the last new pair (its changes are logged).
     pub road_source: Option<RoadSource>,
+    /// Debounces each new pair's image health into sensor faults.
+    pub sensor: SensorMonitor,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -76,9 +79,13 @@ impl EvolutionThread {
         let mut burst: u32 = 0;
         // Consecutive new pairs on which the population matched nowhere.
         let mut blind_pairs: u32 = 0;
+        let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
-            if let Some(p) = self.take_pair() {
-                pair = Some(p);
+            if let Some((l, r, health)) = self.take_pair() {
+                pair = Some((l, r));
+                let next = self.sensor.observe(&health[0], &health[1]);
+                log_sensor(&verdict, &next, &health);
+                verdict = next;
             }
             let Some((left, right)) = pair else {
                 self.stop.sleep(IDLE_WAIT);
@@ -124,12 +131,14 @@ impl EvolutionThread {
                     tracing::info!(matched = stats.matched, "perception matches again");
                 }
             }
+            let mut sensor = verdict.faults;
+            sensor.set(SensorFaults::BLIND, blind);
             let snapshot = Snapshot {
                 generation: stats.generation,
                 global_warning: stats.global_warning,
                 danger: stats.danger,
                 matched: stats.matched,
-                blind,
+                sensor,
                 visible: stats.visible,
                 new_frame: stats.new_frame,
                 road: report.road,
@@ -228,7 +237,7 @@ impl EvolutionThread {
 
     /// Offers newly fetched frames to the pairer; on a pair, moves both images into the
     /// stereo frame under a new id.
-    fn take_pair(&mut self) -> Option<(FrameMeta, FrameMeta)> {
+    fn take_pair(&mut self) -> Option<(FrameMeta, FrameMeta, [ImageHealth; 2])> {
         for (side, reader) in [(Side::Left, &mut self.left), (Side::Right, &mut self.right)] {
             if reader.fetch()
                 && let Some(slot) = reader.slot()
@@ -244,7 +253,7 @@ impl EvolutionThread {
                 std::mem::swap(&mut self.stereo.left, &mut l.image);
                 std::mem::swap(&mut self.stereo.right, &mut r.image);
                 self.stereo.id = self.stereo.id.wrapping_add(1);
-                Some((left, right))
+                Some((left, right, [l.health, r.health]))
             }
             PairOutcome::Rejected { side, skew } => {
                 tracing::debug!(
@@ -255,6 +264,48 @@ impl EvolutionThread {
                 None
             }
             PairOutcome::Waiting => None,
+        }
+    }
+}
+
+/// Logs the sensor faults that a pair raised or cleared, naming the camera and what was
+/// measured on it.
+fn log_sensor(was: &SensorVerdict, now: &SensorVerdict, health: &[ImageHealth; 2]) {
+    let [l, r] = health;
+    let changes = [
+        (
+            SensorFaults::UNIFORM,
+            now.uniform.name(),
+            "image uniform or without texture (dark, saturated, covered, defocused): CAMERA_ERROR",
+        ),
+        (
+            SensorFaults::FROZEN,
+            now.frozen.name(),
+            "image frozen: the camera repeats the same frame: CAMERA_ERROR",
+        ),
+        (
+            SensorFaults::MISMATCH,
+            "both",
+            "left and right exposures far apart: CAMERA_ERROR",
+        ),
+    ];
+    for (bit, camera, what) in changes {
+        let (before, after) = (was.faults.contains(bit), now.faults.contains(bit));
+        if before == after {
+            continue;
+        }
+        if after {
+            tracing::warn!(
+                fault = %bit, camera,
+                left_contrast = l.contrast, right_contrast = r.contrast,
+                left_textured = l.textured, right_textured = r.textured,
+                left_mean = l.mean, right_mean = r.mean,
+                left_unchanged = l.unchanged.unwrap_or(f32::NAN),
+                right_unchanged = r.unchanged.unwrap_or(f32::NAN),
+                "{what}"
+            );
+        } else {
+            tracing::info!(fault = %bit, "sensor fault cleared: the images are healthy again");
         }
     }
 }

@@ -6,7 +6,7 @@
 //! | STEREO_SKEW | the newest snapshot reports too many consecutive rejected pairs | a pair is made |
 //! | EVOLUTION_OVERRUN | the newest generation took longer than the maximum | a generation is in time |
 //! | SNAPSHOT_STALE | no snapshot for `snapshot_timeout` (after start-up) | a snapshot arrives |
-//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or the stereo pair matches nowhere (perception blind: a camera delivers noise or is covered) | that camera delivers again; the flies match again |
+//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or a sensor check fails ([`flyd_core::sensor`]: an image uniform or without texture, frozen, exposures far apart, or the stereo pair matching nowhere; which one is `FLYD_Status.SensorFaults`) | that camera delivers again; the images are healthy again |
 //! | CAN_TX_ERROR | the last CAN write failed | a write succeeds |
 //!
 //! During start-up (until the daemon is running, at most `startup_timeout`), missing frames and
@@ -18,6 +18,7 @@
 
 use std::time::Duration;
 
+use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
 /// What the control thread saw, at time `now`.
@@ -33,8 +34,8 @@ pub struct Observation {
     pub snapshot_at: Option<Duration>,
     pub skew_fault: bool,
     pub overrun: bool,
-    /// The newest snapshot found the images matching nowhere.
-    pub blind: bool,
+    /// The newest snapshot's sensor faults (uniform, frozen, mismatched, blind).
+    pub sensor: SensorFaults,
     pub can_failing: bool,
 }
 
@@ -95,7 +96,7 @@ impl FaultMonitor {
         f.set(FaultBits::EVOLUTION_OVERRUN, o.overrun);
         f.set(
             FaultBits::CAMERA_ERROR,
-            o.left_error || o.right_error || o.blind,
+            o.left_error || o.right_error || !o.sensor.is_empty(),
         );
         f.set(FaultBits::CAN_TX_ERROR, o.can_failing);
         f
@@ -201,7 +202,8 @@ mod tests {
         check(|o| o.skew_fault = true, FaultBits::STEREO_SKEW);
         check(|o| o.overrun = true, FaultBits::EVOLUTION_OVERRUN);
         check(|o| o.right_error = true, FaultBits::CAMERA_ERROR);
-        check(|o| o.blind = true, FaultBits::CAMERA_ERROR);
+        check(|o| o.sensor = SensorFaults::BLIND, FaultBits::CAMERA_ERROR);
+        check(|o| o.sensor = SensorFaults::FROZEN, FaultBits::CAMERA_ERROR);
         check(|o| o.can_failing = true, FaultBits::CAN_TX_ERROR);
     }
 }

@@ -50,9 +50,9 @@ pub type Cameras = (Box<dyn FrameSource>, Box<dyn FrameSource>);
 /// `clock`.
 pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Cameras, DaemonError> {
     match &config.cameras.source {
-        CameraSource::Mock { scenario } => {
+        CameraSource::Mock { scenario, faults } => {
             let (w, h) = (config.cameras.width, config.cameras.height);
-            let (left, right, _) = mock_cameras(scenario, w, h, clock)?;
+            let (left, right, _) = mock_cameras(scenario, w, h, clock, faults)?;
             Ok((Box::new(left), Box::new(right)))
         }
         CameraSource::Devices { left, right } => {

@@ -7,6 +7,11 @@
 //! (a slow debug build) skips to the frame due now, and the other follows it, rather than
 //! delivering an ever older backlog. After the scenario's last frame: end of stream.
 //!
+//! Faults can be injected per camera over a time window ([`MockFault`], `[[cameras.mock_faults]]`
+//! in the configuration): black, white or grey frames, a frozen image, noise, a dark gain,
+//! dropped frames. They stand for the sensor failures the daemon must not take for a clear
+//! road (see [`flyd_core::sensor`]).
+//!
 //! The lock between the two capture threads is the mock's business (it stands for the shared
 //! trigger of two real cameras); the evolution thread never touches it.
 
@@ -14,6 +19,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use hw_mock::Scenario;
+use serde::Deserialize;
 
 use super::clock::SharedClock;
 use super::pairer::Side;
@@ -63,8 +69,92 @@ pub struct MockCamera {
     first_obstacle: Option<u32>,
     /// Next frame this camera wants.
     next: u32,
+    /// The image delivered last (a frozen fault delivers it again).
     pixels: Vec<u8>,
     size: (u32, u32),
+    /// The faults that concern this camera.
+    faults: Vec<MockFault>,
+}
+
+/// What an injected fault does to a mock camera's frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaultKind {
+    /// All pixels 0 (lens covered, sensor dead).
+    Black,
+    /// All pixels 255 (saturated: sun in the lens, exposure stuck).
+    White,
+    /// All pixels 128 (a driver's blank frame).
+    Grey,
+    /// The last image again, with fresh timestamps (frozen sensor, stuck buffer).
+    Frozen,
+    /// Uniform random bytes (a broken link, interference).
+    Noise,
+    /// The image times `gain` (exposure or gain stuck low).
+    Dark,
+    /// No frame at all (the device delivers nothing).
+    Drop,
+}
+
+/// Which camera a fault hits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaultCamera {
+    Left,
+    Right,
+    Both,
+}
+
+/// One injected fault: `kind` on `camera` for frames due in `[from_s, to_s)` seconds after
+/// the mock's start.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MockFault {
+    pub kind: FaultKind,
+    pub camera: FaultCamera,
+    pub from_s: f64,
+    pub to_s: f64,
+    /// The gain of a `dark` fault, in (0, 1].
+    #[serde(default = "default_dark_gain")]
+    pub gain: f64,
+}
+
+fn default_dark_gain() -> f64 {
+    0.1
+}
+
+/// Most faults one run takes (a test needs a few).
+pub const MAX_MOCK_FAULTS: usize = 32;
+
+impl MockFault {
+    /// Why this fault cannot be injected, if it cannot.
+    pub fn check(&self) -> Result<(), String> {
+        let ok = |v: f64| v.is_finite() && (0.0..=86_400.0).contains(&v);
+        if !(ok(self.from_s) && ok(self.to_s) && self.from_s < self.to_s) {
+            return Err(format!(
+                "from_s and to_s must be seconds within 0..=86400 with from_s < to_s, got {} and {}",
+                self.from_s, self.to_s
+            ));
+        }
+        if !(self.gain.is_finite() && self.gain > 0.0 && self.gain <= 1.0) {
+            return Err(format!("gain must be within (0, 1], got {}", self.gain));
+        }
+        Ok(())
+    }
+
+    fn hits(&self, side: Side) -> bool {
+        matches!(
+            (self.camera, side),
+            (FaultCamera::Both, _)
+                | (FaultCamera::Left, Side::Left)
+                | (FaultCamera::Right, Side::Right)
+        )
+    }
+
+    fn active_at(&self, t: Duration) -> bool {
+        let t = t.as_secs_f64();
+        self.from_s <= t && t < self.to_s
+    }
 }
 
 /// The two cameras of `scenario` through the mock rig at `width` x `height`, paced on `clock`
@@ -74,6 +164,7 @@ pub fn mock_cameras(
     width: u32,
     height: u32,
     clock: &SharedClock,
+    faults: &[MockFault],
 ) -> Result<(MockCamera, MockCamera, MockTruth), MockCameraError> {
     let scenario = Scenario::by_name(scenario).ok_or_else(|| MockCameraError::UnknownScenario {
         name: scenario.to_string(),
@@ -104,6 +195,7 @@ pub fn mock_cameras(
         next: 0,
         pixels: vec![0; bytes],
         size: (width, height),
+        faults: faults.iter().copied().filter(|f| f.hits(side)).collect(),
     };
     Ok((
         camera(Side::Left),
@@ -123,6 +215,35 @@ pub enum MockCameraError {
 impl MockCamera {
     fn due(&self, k: u32) -> Duration {
         self.start + self.period * k
+    }
+
+    /// The fault active on frame `k`, if any (the first one listed).
+    fn fault_at(&self, k: u32) -> Option<MockFault> {
+        let t = self.due(k).saturating_sub(self.start);
+        self.faults.iter().copied().find(|f| f.active_at(t))
+    }
+
+    /// Applies `fault` to the image just fetched.
+    fn inject(&mut self, fault: MockFault, k: u32) {
+        match fault.kind {
+            FaultKind::Black => self.pixels.fill(0),
+            FaultKind::White => self.pixels.fill(255),
+            FaultKind::Grey => self.pixels.fill(128),
+            // The image was not refreshed (`fetch`); dropped frames are not delivered at all.
+            FaultKind::Frozen | FaultKind::Drop => {}
+            FaultKind::Noise => {
+                let seed = u64::from(k) << 1 | matches!(self.side, Side::Right) as u64;
+                for (i, v) in self.pixels.iter_mut().enumerate() {
+                    *v = hw_mock::splitmix64(seed.wrapping_mul(0x1_0000_0001) ^ i as u64) as u8;
+                }
+            }
+            FaultKind::Dark => {
+                let gain = fault.gain;
+                for v in &mut self.pixels {
+                    *v = (f64::from(*v) * gain).round() as u8;
+                }
+            }
+        }
     }
 
     /// Renders (or takes from the cache) the pair this camera should deliver next, copies its
@@ -155,9 +276,17 @@ impl MockCamera {
             Side::Left => &feed.left,
             Side::Right => &feed.right,
         };
-        self.pixels.copy_from_slice(src);
+        let fault = self.fault_at(k);
+        // A frozen camera delivers its last image again.
+        if fault.is_none_or(|f| f.kind != FaultKind::Frozen) {
+            self.pixels.copy_from_slice(src);
+        }
         if self.first_obstacle.is_some_and(|f| k >= f) && feed.first_obstacle_at.is_none() {
             feed.first_obstacle_at = Some(self.due(k));
+        }
+        drop(feed);
+        if let Some(f) = fault {
+            self.inject(f, k);
         }
         Ok(k)
     }
@@ -202,6 +331,11 @@ impl FrameSource for MockCamera {
         } else {
             self.fetch(now)?
         };
+        if self.fault_at(k).is_some_and(|f| f.kind == FaultKind::Drop) {
+            // The frame is lost: nothing within this wait.
+            self.next = k + 1;
+            return Err(SourceError::Timeout(timeout));
+        }
         out.prepare(PixelFormat::Rgb8, &self.pixels)
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),
@@ -226,7 +360,7 @@ mod tests {
         let clock = ManualClock::new(Duration::from_secs(100));
         let shared: SharedClock = Arc::new(clock.clone());
         let (mut l, mut r, truth) =
-            mock_cameras("pedestrian-steps-in", 64, 48, &shared).expect("scenario");
+            mock_cameras("pedestrian-steps-in", 64, 48, &shared, &[]).expect("scenario");
         let mut img = PreparedImage::new(64, 48).expect("image");
         let t = Duration::from_millis(1);
         let a = l.next_frame(&mut img, t).expect("frame 0");
@@ -262,6 +396,6 @@ mod tests {
             r.next_frame(&mut img, t),
             Err(SourceError::EndOfStream)
         ));
-        assert!(mock_cameras("nope", 64, 48, &shared).is_err());
+        assert!(mock_cameras("nope", 64, 48, &shared, &[]).is_err());
     }
 }

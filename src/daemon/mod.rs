@@ -68,6 +68,7 @@ use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::perception::{Perception, PerceptionError};
+use flyd_core::sensor::SensorMonitor;
 use notify::ServiceNotifier;
 use pairer::{Pairer, Side};
 use ring::frame_ring;
@@ -265,6 +266,7 @@ pub fn run(
         config: config.evolution,
         stop: stop.clone(),
         road_source: None,
+        sensor: SensorMonitor::new(config.sensor),
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {

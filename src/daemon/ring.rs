@@ -34,6 +34,7 @@ use triple_buffer::{Input, Output, TripleBuffer};
 
 use crate::source::FrameMeta;
 use flyd_core::frame::{FrameError, PreparedImage};
+use flyd_core::sensor::ImageHealth;
 
 /// One frame and what is known about it.
 #[derive(Debug, Clone)]
@@ -43,6 +44,10 @@ pub struct Slot {
     pub meta: FrameMeta,
     /// When the capture thread got it (daemon clock).
     pub arrival: Duration,
+    /// What the sensor checks measured on it (the capture thread's [`ImageCheck`]).
+    ///
+    /// [`ImageCheck`]: flyd_core::sensor::ImageCheck
+    pub health: ImageHealth,
     /// Publication number, from 1: gaps between fetches are overwritten frames.
     pub published: u64,
 }
@@ -89,6 +94,7 @@ pub fn frame_ring(width: u32, height: u32) -> Result<(FrameWriter, FrameReader),
             sequence: 0,
         },
         arrival: Duration::ZERO,
+        health: ImageHealth::default(),
         published: 0,
     };
     let (input, output) = TripleBuffer::new(&slot).split();

@@ -10,6 +10,7 @@ use std::time::Duration;
 use crate::source::FrameMeta;
 use flyd_core::can::messages::ObstacleMsg;
 use flyd_core::perception::{CorridorCounts, RoadEstimate, Tracked};
+use flyd_core::sensor::SensorFaults;
 
 /// One generation's outcome.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -23,9 +24,10 @@ pub struct Snapshot {
     /// Fraction of the flies evaluated in the generation whose windows match (see
     /// [`flyd_core::engine::GenerationStats`]): what `blind` is judged on, logged with the stats.
     pub matched: f64,
-    /// On the last `blind_pairs` new pairs, fewer than `blind_matched` of the flies matched:
-    /// the images match nowhere, so a low warning proves nothing (CAMERA_ERROR).
-    pub blind: bool,
+    /// The sensor faults of the newest pair ([`flyd_core::sensor`]), BLIND included (on the
+    /// last `blind_pairs` new pairs, fewer than `blind_matched` of the flies matched: the
+    /// images match nowhere, so a low warning proves nothing). Any of them is CAMERA_ERROR.
+    pub sensor: SensorFaults,
     pub visible: usize,
     /// The generation saw a new pair (the population was re-evaluated).
     pub new_frame: bool,

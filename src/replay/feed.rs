@@ -27,6 +27,11 @@ pub trait FrameFeed {
     fn first_obstacle(&self) -> Option<u64> {
         None
     }
+    /// Whether the feed shows the same images as every frame (a still pair): the sensor
+    /// checks then do not take the repetition for a frozen camera.
+    fn still(&self) -> bool {
+        false
+    }
     /// The name of frame `index` (its left file, for a sequence).
     fn frame_name(&self, index: u64) -> String {
         index.to_string()
@@ -82,6 +87,10 @@ impl FrameFeed for PairFeed {
 
     fn frames(&self) -> u64 {
         self.frames
+    }
+
+    fn still(&self) -> bool {
+        true
     }
 
     fn load(

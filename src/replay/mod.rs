@@ -44,6 +44,8 @@ use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
+use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorMonitor, SensorVerdict};
+use flyd_core::status::FaultBits;
 use image::RgbImage;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -116,6 +118,8 @@ pub struct Settings {
     pub per_frame: u64,
     /// Frames per second of the feed (the decider's clock).
     pub fps: f64,
+    /// The sensor checks ([`flyd_core::sensor`]): a fault is CAMERA_ERROR for the decider.
+    pub sensor: SensorConfig,
     /// Generations before the decider takes input.
     pub warmup_generations: u64,
 }
@@ -153,6 +157,9 @@ pub struct TraceRow {
     pub elapsed: Duration,
     /// Of which the road fit and the obstacle stage.
     pub stage: Duration,
+    /// The sensor checks on this frame (left, right) and what they concluded.
+    pub health: [ImageHealth; 2],
+    pub sensor: SensorVerdict,
 }
 
 /// A finished replay: perception as it ended, and one trace row per generation.
@@ -198,12 +205,24 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
     };
     let mut trace = Vec::with_capacity(usize::try_from(settings.generations).unwrap_or(0));
     let mut index = None;
+    let mut checks = [ImageCheck::new(w, h), ImageCheck::new(rw, rh)];
+    let mut monitor = SensorMonitor::new(settings.sensor);
+    let (mut health, mut sensor) = ([ImageHealth::default(); 2], SensorVerdict::default());
     for g in 0..settings.generations {
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
         if index != Some(wanted) {
             feed.load(wanted, &mut frame, &mut left)?;
             frame.id = wanted;
             index = Some(wanted);
+            health = [
+                checks[0].observe(&frame.left),
+                checks[1].observe(&frame.right),
+            ];
+            if feed.still() {
+                // The same images shown again are a still scene, not a frozen camera.
+                health.iter_mut().for_each(|h| h.unchanged = None);
+            }
+            sensor = monitor.observe(&health[0], &health[1]);
         }
         // On the frames' clock: the generations of a frame spread over its period.
         let time = Duration::from_secs_f64((g as f64 / per_frame as f64) / fps);
@@ -216,6 +235,11 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
             let input = DecisionInput {
                 global_warning: report.stats.global_warning,
                 obstacle: report.tracked.confirmed().map(|o| o.distance),
+                faults: if sensor.faults.is_empty() {
+                    FaultBits::empty()
+                } else {
+                    FaultBits::CAMERA_ERROR
+                },
                 ..DecisionInput::at_speed(None, settings.speed)
             };
             Some(decider.update(input, time))
@@ -234,6 +258,8 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
             elapsed,
             stage,
+            health,
+            sensor,
         });
     }
     let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
@@ -309,6 +335,8 @@ mod tests {
                 reason: CommandReason::Perception,
                 elapsed: Duration::ZERO,
                 stage: Duration::ZERO,
+                health: [ImageHealth::default(); 2],
+                sensor: SensorVerdict::default(),
             })
             .collect()
     }

@@ -78,15 +78,19 @@ fn write_road_points(replay: &Replay, path: &Path) -> Result<(), ReplayError> {
 pub const TRACE_HEADER: &str = "generation,frame,frame_name,new_frame,time_s,global_warning,danger,\
 visible,road_source,road_height,road_pitch_deg,road_roll_deg,road_inliers,corridor_flies,\
 unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_lateral,obstacle_bottom,\
-obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us";
+obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
+left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged";
 
 /// One row of `trace.csv` (no newline).
 fn trace_line(r: &TraceRow) -> String {
     let road = &r.road;
     let o = r.tracked.obstacle;
     let num = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.3}"));
+    let [l, rh] = r.health;
+    let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
-        "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}",
+        "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
+         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{}",
         r.stats.generation,
         r.frame,
         r.frame_name,
@@ -112,7 +116,15 @@ fn trace_line(r: &TraceRow) -> String {
         num(o.map(|o| o.confidence)),
         r.command,
         r.reason,
-        r.elapsed.as_secs_f64() * 1e6
+        r.elapsed.as_secs_f64() * 1e6,
+        r.stats.matched,
+        r.sensor.faults,
+        l.contrast,
+        rh.contrast,
+        l.textured,
+        rh.textured,
+        frac(l.unchanged),
+        frac(rh.unchanged),
     )
 }
 

@@ -59,6 +59,8 @@ pub struct FrameReport {
     pub obstacle: Option<ObstacleReport>,
     pub command: String,
     pub reason: String,
+    /// The sensor faults on this frame ("none" when healthy).
+    pub sensor_faults: String,
 }
 
 impl FrameReport {
@@ -76,6 +78,7 @@ impl FrameReport {
             }),
             command: r.command.to_string(),
             reason: r.reason.to_string(),
+            sensor_faults: r.sensor.faults.to_string(),
         }
     }
 }
@@ -140,6 +143,9 @@ pub struct Summary {
     /// Commands after the warm-up (`warmup_generations`).
     pub warmup_generations: u64,
     pub alarms: Alarms,
+    /// Frames on which a sensor check failed (uniform, frozen or mismatched images: see
+    /// `flyd_core::sensor`); the decider then held the safe command.
+    pub sensor_fault_frames: u64,
     /// On a scenario where an obstacle appears: how fast the warning and the command reacted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reaction: Option<Reaction>,
@@ -170,6 +176,7 @@ impl Summary {
                 obstacle: None,
                 command: replay.settings.decision.safe_command.to_string(),
                 reason: CommandReason::FaultFallback.to_string(),
+                sensor_faults: "none".into(),
             },
             FrameReport::of,
         );
@@ -188,6 +195,10 @@ impl Summary {
             last,
             warmup_generations: replay.settings.warmup_generations,
             alarms: Alarms::of(&replay.trace, replay.settings.warmup_generations),
+            sensor_fault_frames: replay
+                .frame_ends()
+                .filter(|r| !r.sensor.faults.is_empty())
+                .count() as u64,
             reaction,
             per_frame,
         }

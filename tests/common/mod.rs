@@ -1,5 +1,5 @@
 //! Test hardware for the threaded daemon: a stereo rig, cameras that render an analytic scene
-//! (a textured "pedestrian" panel in front of a featureless road) and can be told to show the
+//! (a textured "pedestrian" panel on a textured road) and can be told to show the
 //! obstacle, stall, or end, and helpers to run `flyd::daemon::run` in the background and decode
 //! what it sent.
 #![allow(dead_code)] // each test binary uses a part of it
@@ -39,8 +39,14 @@ fn hash(ix: i64, iy: i64) -> f64 {
     (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// Depth of the textured backdrop behind everything, metres: beyond the corridor's reach, so
+/// flies that find it see no obstacle.
+pub const BACKDROP_Z: f64 = 80.0;
+
 /// Grey image of `cam`: a textured panel (|x| <= 0.6 m, 0 <= y <= 1.8 m) at z = OBSTACLE_Z
-/// when `obstacle`, uniform grey (no gradient, so no fly finds anything) elsewhere.
+/// when `obstacle`, on a textured road (the plane y = 0) before a textured backdrop at
+/// BACKDROP_Z (a real camera never sees a uniform world: the sensor checks take that for a
+/// covered lens).
 fn render(cam: &Camera, obstacle: bool) -> Vec<u8> {
     let mut out = Vec::with_capacity((W * H) as usize);
     for v in 0..H {
@@ -51,8 +57,23 @@ fn render(cam: &Camera, obstacle: bool) -> Vec<u8> {
             let value = if on_panel {
                 let cell = 0.04;
                 40.0 + 180.0 * hash((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
+            } else if d.y < 0.0 && (o + d * (-o.y / d.y)).z < BACKDROP_Z {
+                // The road: a textured ground plane (height 0, no obstacle).
+                let g = o + d * (-o.y / d.y);
+                let cell = 0.3;
+                60.0 + 120.0
+                    * hash(
+                        2_000 + (g.x / cell).floor() as i64,
+                        (g.z / cell).floor() as i64,
+                    )
             } else {
-                128.0
+                let b = o + d * ((BACKDROP_Z - o.z) / d.z);
+                let cell = 1.5;
+                70.0 + 110.0
+                    * hash(
+                        1_000 + (b.x / cell).floor() as i64,
+                        (b.y / cell).floor() as i64,
+                    )
             };
             out.push(value as u8);
         }
@@ -85,7 +106,13 @@ pub struct SceneCamera {
     start: Duration,
     period: Duration,
     next: u64,
+    /// The frame delivered: the image with this frame's sensor noise.
+    noisy: Vec<u8>,
 }
+
+/// Sensor noise of the scene cameras, grey levels either side (a live sensor's frames never
+/// repeat exactly: the sensor checks take a repeated one for a frozen camera).
+pub const NOISE: u64 = 2;
 
 impl SceneCamera {
     pub fn pair(
@@ -105,6 +132,7 @@ impl SceneCamera {
                 start,
                 period: Duration::from_secs_f64(1.0 / fps),
                 next: 0,
+                noisy: vec![0; (W * H) as usize],
             })
         };
         (make(&rig.left, false), make(&rig.right, true))
@@ -149,7 +177,17 @@ impl FrameSource for SceneCamera {
         }
         self.next = k + 1;
         let obstacle = c.obstacle.load(Ordering::Relaxed);
-        out.prepare(PixelFormat::Grey8, &self.images[obstacle as usize])
+        let seed = (k as i64) << 1 | self.right as i64;
+        for (i, (n, &v)) in self
+            .noisy
+            .iter_mut()
+            .zip(&self.images[obstacle as usize])
+            .enumerate()
+        {
+            let e = (hash(seed, i as i64) * (2 * NOISE + 1) as f64) as i64 - NOISE as i64;
+            *n = (i64::from(v) + e).clamp(0, 255) as u8;
+        }
+        out.prepare(PixelFormat::Grey8, &self.noisy)
             .map_err(|e| SourceError::Format {
                 device: self.name.clone(),
                 reason: "preparing a frame".into(),

@@ -125,6 +125,50 @@ pub struct PreparedImage {
     /// Mean luma of each [`BLOCK`] x [`BLOCK`] block, row-major (what the engine compares
     /// between frames to see where the scene changed).
     block_means: Vec<u8>,
+    /// Each colour channel's mean and standard deviation as captured, before normalisation
+    /// (what the sensor checks of [`crate::sensor`] judge contrast and exposure on).
+    raw: RawStats,
+}
+
+/// A frame's channels as captured (before photometric normalisation): mean and standard
+/// deviation per channel, grey levels, and the gain normalisation applied to each.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RawStats {
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    pub gain: [f32; 3],
+    /// Channels that carry data (3 for RGB, 1 for grey).
+    pub channels: u8,
+    /// What raw black (0) and white (255) of channel 0 became in the prepared image: a pixel
+    /// clipped by the sensor.
+    pub black: u8,
+    pub white: u8,
+}
+
+impl RawStats {
+    /// BT.601 luma of the channel means (the grey mean for a grey frame).
+    pub fn luma_mean(&self) -> f32 {
+        self.weighted(self.mean)
+    }
+
+    /// Standard deviation of the luma, approximated from the channels' (exact when they are
+    /// proportional, as on grey scenes; an upper bound otherwise).
+    pub fn luma_std(&self) -> f32 {
+        self.weighted(self.std)
+    }
+
+    /// The gain normalisation applied to the luma (the channels' gains, weighted).
+    pub fn luma_gain(&self) -> f32 {
+        self.weighted(self.gain)
+    }
+
+    fn weighted(&self, v: [f32; 3]) -> f32 {
+        if self.channels == 3 {
+            0.299 * v[0] + 0.587 * v[1] + 0.114 * v[2]
+        } else {
+            v[0]
+        }
+    }
 }
 
 /// Side of the blocks of [`PreparedImage::block_means`], pixels.
@@ -147,6 +191,7 @@ impl PreparedImage {
             luma: vec![0; w * h],
             row_scratch: vec![0; w],
             block_means: vec![0; w.div_ceil(BLOCK) * h.div_ceil(BLOCK)],
+            raw: RawStats::default(),
         })
     }
 
@@ -203,6 +248,11 @@ impl PreparedImage {
         &self.block_means
     }
 
+    /// The frame's channels as captured, before normalisation.
+    pub fn raw_stats(&self) -> RawStats {
+        self.raw
+    }
+
     /// Quantised gradient norm of pixel `(x, y)` (inside the image).
     pub fn gradient(&self, x: u32, y: u32) -> u8 {
         self.data[self.offset(x as isize, y as isize) + 3]
@@ -241,7 +291,8 @@ impl PreparedImage {
     #[inline(always)]
     fn prepare_with(&mut self, _: Isa, format: PixelFormat, pixels: &[u8]) {
         let (w, h) = (self.width, self.height);
-        let [n0, n1, n2] = self.normalisation(format, pixels);
+        let ([n0, n1, n2], raw) = self.normalisation(format, pixels);
+        self.raw = raw;
         // Colour (normalised) and luma.
         for y in 0..h {
             let row = self.offset(0, y as isize);
@@ -290,7 +341,7 @@ impl PreparedImage {
     /// needing the other camera's frame. Built from exact integer sums of v and v^2 (one vectorised
     /// pass): no allocation.
     #[inline(always)]
-    fn normalisation(&self, format: PixelFormat, pixels: &[u8]) -> [Affine; 3] {
+    fn normalisation(&self, format: PixelFormat, pixels: &[u8]) -> ([Affine; 3], RawStats) {
         let channels = format.bytes_per_pixel();
         // Exact integer sums of v and v^2 per channel. 48 lanes (16 RGB pixels, 48 grey ones)
         // keep each lane on one channel and let the compiler vectorise; lanes are u32 within a
@@ -320,11 +371,21 @@ impl PreparedImage {
         }
         let n = (self.width * self.height) as f64;
         let mut maps = [Affine::IDENTITY; 3];
+        let mut raw = RawStats {
+            channels: channels as u8,
+            ..RawStats::default()
+        };
         for c in 0..channels {
             let mean = sum[c] as f64 / n;
-            maps[c] = Affine::normalising(mean, sq[c] as f64 / n - mean * mean);
+            let var = (sq[c] as f64 / n - mean * mean).max(0.0);
+            maps[c] = Affine::normalising(mean, var);
+            raw.mean[c] = mean as f32;
+            raw.std[c] = var.sqrt() as f32;
+            raw.gain[c] = maps[c].gain as f32 / 65536.0;
         }
-        maps
+        raw.black = maps[0].apply(0) as u8;
+        raw.white = maps[0].apply(255) as u8;
+        (maps, raw)
     }
 
     #[inline(always)]
@@ -519,7 +580,7 @@ mod tests {
                     .map(|_| 60 + noise(span).min(195))
                     .collect();
                 let img = PreparedImage::new(w, h).unwrap();
-                let got = img.normalisation(format, &px);
+                let (got, _) = img.normalisation(format, &px);
                 for (c, &(mean, var)) in reference_stats(&px, channels).iter().enumerate() {
                     let want = Affine::normalising(mean, var);
                     let what = format!("{w}x{h} {format:?} span {span} channel {c}");

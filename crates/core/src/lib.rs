@@ -21,6 +21,7 @@ pub mod geometry;
 pub mod isa;
 pub mod perception;
 pub mod road;
+pub mod sensor;
 pub mod status;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;

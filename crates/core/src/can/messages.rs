@@ -30,7 +30,8 @@
 //! |--------|---------------------|------|-------|-------|
 //! | 12..16 | `State`             | u4   | enum [`State`] | 0..=4 |
 //! | 16..24 | `FaultBits`         | u8   | bitfield [`FaultBits`] | any |
-//! | 24..40 | `PerceptionAgeMs`   | u16  | 1 ms  | 0..=65535 (65535 = that old or older, or never) |
+//! | 24..36 | `PerceptionAgeMs`   | u12  | 1 ms  | 0..=4095 (4095 = that old or older, or never) |
+//! | 36..40 | `SensorFaults`      | u4   | bitfield [`SensorFaults`] | any (each also sets `CAMERA_ERROR`) |
 //! | 40..48 | `GenerationsPerSec` | u8   | 2 /s  | 0..=510 |
 //! | 48..56 | `CamFpsLeft`        | u8   | 0.5 fps | 0..=127.5 |
 //! | 56..64 | `CamFpsRight`       | u8   | 0.5 fps | 0..=127.5 |
@@ -67,6 +68,7 @@ use thiserror::Error;
 use super::crc::e2e_crc;
 use crate::decision::{Command, CommandReason, Decision};
 use crate::perception::{RoadEstimate, Tracked};
+use crate::sensor::SensorFaults;
 use crate::status::{FaultBits, State};
 
 /// Every flyd frame is classic CAN with 8 data bytes.
@@ -264,7 +266,8 @@ mod layout {
         use super::Field;
         pub const STATE: Field = Field { start: 12, len: 4 };
         pub const FAULTS: Field = Field { start: 16, len: 8 };
-        pub const AGE_MS: Field = Field { start: 24, len: 16 };
+        pub const AGE_MS: Field = Field { start: 24, len: 12 };
+        pub const SENSOR: Field = Field { start: 36, len: 4 };
         pub const GENERATIONS: Field = Field { start: 40, len: 8 };
         pub const GENERATIONS_PER_UNIT: f64 = 0.5;
         pub const FPS_LEFT: Field = Field { start: 48, len: 8 };
@@ -438,8 +441,10 @@ pub struct StatusMsg {
     pub state: State,
     pub faults: FaultBits,
     /// Age of the perception snapshot the current command was decided from; saturates at
-    /// 65535 ms (use [`Duration::MAX`] for "no snapshot yet").
+    /// 4095 ms (use [`Duration::MAX`] for "no snapshot yet").
     pub perception_age: Duration,
+    /// Which sensor checks failed ([`crate::sensor`]); any of them also sets `CAMERA_ERROR`.
+    pub sensor: SensorFaults,
     /// Evolution rate, generations per second (resolution 2, saturates at 510).
     pub generations_per_sec: f64,
     /// Left camera frame rate, fps (resolution 0.5, saturates at 127.5).
@@ -461,6 +466,7 @@ impl CanMessage for StatusMsg {
         FAULTS.put(&mut w, u64::from(self.faults.bits()));
         let age_ms = u64::try_from(self.perception_age.as_millis()).unwrap_or(u64::MAX);
         AGE_MS.put(&mut w, age_ms.min(AGE_MS.max_unsigned()));
+        SENSOR.put(&mut w, u64::from(self.sensor.bits()));
         GENERATIONS.put(
             &mut w,
             to_raw_unsigned(
@@ -493,6 +499,7 @@ impl CanMessage for StatusMsg {
             state: decode_enum(STATE.get(w), "State", State::from_raw)?,
             faults: FaultBits::from_bits(FAULTS.get(w) as u8),
             perception_age: Duration::from_millis(AGE_MS.get(w)),
+            sensor: SensorFaults::from_bits(SENSOR.get(w) as u8),
             generations_per_sec: GENERATIONS.get(w) as f64 / GENERATIONS_PER_UNIT,
             cam_fps_left: FPS_LEFT.get(w) as f64 / FPS_PER_UNIT,
             cam_fps_right: FPS_RIGHT.get(w) as f64 / FPS_PER_UNIT,
@@ -696,6 +703,7 @@ mod tests {
             state: State::Fault,
             faults: FaultBits::STEREO_SKEW | FaultBits::INTERNAL,
             perception_age: Duration::from_millis(987),
+            sensor: SensorFaults::FROZEN | SensorFaults::BLIND,
             generations_per_sec: 64.0,
             cam_fps_left: 14.5,
             cam_fps_right: 15.0,
@@ -740,6 +748,7 @@ mod tests {
                 state,
                 faults: FaultBits::all(),
                 perception_age: Duration::ZERO,
+                sensor: SensorFaults::from_bits(0x0F),
                 generations_per_sec: 0.0,
                 cam_fps_left: 0.0,
                 cam_fps_right: 0.0,
@@ -778,12 +787,13 @@ mod tests {
             state: State::Running,
             faults: FaultBits::empty(),
             perception_age: Duration::MAX,
+            sensor: SensorFaults::empty(),
             generations_per_sec: 5000.0,
             cam_fps_left: 1000.0,
             cam_fps_right: -5.0,
         };
         let back = StatusMsg::decode(&status.encode(c(0))).expect("decodes");
-        assert_eq!(back.perception_age, Duration::from_millis(65535));
+        assert_eq!(back.perception_age, Duration::from_millis(4095));
         assert_eq!(back.generations_per_sec, 510.0);
         assert_eq!(back.cam_fps_left, 127.5);
         assert_eq!(back.cam_fps_right, 0.0);
@@ -911,6 +921,7 @@ mod tests {
             state: State::Running,
             faults: FaultBits::empty(),
             perception_age: Duration::ZERO,
+            sensor: SensorFaults::empty(),
             generations_per_sec: 0.0,
             cam_fps_left: 0.0,
             cam_fps_right: 0.0,

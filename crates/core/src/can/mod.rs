@@ -374,6 +374,7 @@ mod tests {
             state: crate::status::State::Running,
             faults: crate::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
+            sensor: crate::sensor::SensorFaults::empty(),
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,
             cam_fps_right: 30.0,

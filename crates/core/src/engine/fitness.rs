@@ -247,7 +247,9 @@ impl<'a> Kernel<'a> {
                 (0.0, 0.0)
             };
             m.visible += u32::from(compared);
-            m.matched += u32::from(compared & (ssd <= self.match_ssd));
+            // A match counts only on texture: uniform windows (a black or saturated image)
+            // have a zero SSD everywhere and would otherwise "match" at every depth.
+            m.matched += u32::from(compared & (ssd <= self.match_ssd) & (g >= MATCH_MIN_GRADIENT));
             // FITNESS_SCALE gl gr / (ssd / |N| + ssd_floor), written with one division.
             let f = g * self.scale / (ssd + self.floor);
             let h = ys[i] - (r0 + rz * zs[i] + rx * xs[i]);
@@ -315,7 +317,13 @@ pub(super) fn trunc(x: f32) -> i32 {
 /// to that standard deviation, so the level holds for any camera and scene.
 const MATCH_SSD_PER_SAMPLE: f64 = 0.25 * 2.0 * NORMALISED_STD * NORMALISED_STD;
 
-/// What one evaluation saw: flies inside both images, and those whose windows match.
+/// `gl * gr` (the windows' centre gradient bytes, normalised Sobel magnitude / 4) from which
+/// a match counts as one on texture: both centres at a normalised gradient of about 16, a
+/// third of a typical edge's after normalisation. Uniform windows have 0.
+const MATCH_MIN_GRADIENT: f32 = 16.0;
+
+/// What one evaluation saw: flies inside both images, and those whose windows match (on
+/// texture).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub(crate) struct Matches {
     pub(crate) visible: u32,
