@@ -4,6 +4,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
 use flyd::replay::{self, FrameFeed, PairFeed, ScenarioFeed, SequenceFeed, Summary};
 use flyd_core::engine::EngineParams;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
@@ -139,6 +140,22 @@ struct RunArgs {
     duration: Option<f64>,
 }
 
+/// Writes a line to stdout: a full disk or a closed pipe is an error (exit 1 with a message),
+/// never a panic as `println!` makes it.
+fn say_line(args: std::fmt::Arguments) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    out.write_fmt(args)
+        .and_then(|()| out.write_all(b"\n"))
+        .and_then(|()| out.flush())
+        .context("writing to standard output")
+}
+
+macro_rules! say {
+    ($($arg:tt)*) => {
+        say_line(format_args!($($arg)*))
+    };
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -150,7 +167,12 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("flyd: {}", flyd_core::chain::Chain(e.as_ref()));
+            // Not eprintln!: a closed stderr must not turn an error into a panic.
+            let _ = writeln!(
+                std::io::stderr(),
+                "flyd: {}",
+                flyd_core::chain::Chain(e.as_ref())
+            );
             ExitCode::FAILURE
         }
     }
@@ -237,20 +259,14 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         )
     });
     let summary = Summary::of(&run, &args.out, reaction);
-    println!("{}", serde_json::to_string_pretty(&summary)?);
+    say!("{}", serde_json::to_string_pretty(&summary)?)?;
     Ok(())
 }
 
 /// A recorded pair's calibration into the engine's parameters: its depth range, if it gives
 /// one, and no road region of interest for a rig the calibration does not place on a road.
 fn apply_calibration(params: &mut EngineParams, cal: &flyd_core::calib::Calibration) {
-    if let Some((min, max)) = cal.depth_range {
-        params.min_depth = min;
-        params.max_depth = max;
-    }
-    if !cal.has_road {
-        params.roi = None;
-    }
+    cal.apply_to(params);
 }
 
 fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {
@@ -280,9 +296,9 @@ fn bench_command(args: BenchArgs) -> Result<()> {
         },
     })?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        say!("{}", serde_json::to_string_pretty(&report)?)?;
     } else {
-        println!("{report}");
+        say!("{report}")?;
     }
     Ok(())
 }
@@ -290,18 +306,20 @@ fn bench_command(args: BenchArgs) -> Result<()> {
 /// `flyd check-config FILE`: what start-up checks, without devices.
 fn cmd_check_config(file: &Path) -> anyhow::Result<()> {
     let config = config::check(file)?;
-    println!(
-        "{}: ok ({}x{} at {} fps, {} flies, CAN {})",
+    say!(
+        "{}: ok ({}x{} at {} fps, {} flies, depths {}-{} m, CAN {})",
         file.display(),
         config.cameras.width,
         config.cameras.height,
         config.cameras.fps,
         config.engine.flies,
+        config.engine.min_depth,
+        config.engine.max_depth,
         match &config.can.target {
             CanTarget::Interface(iface) => iface.clone(),
             CanTarget::Log { path, .. } => format!("log {}", path.display()),
         }
-    );
+    )?;
     Ok(())
 }
 
@@ -335,7 +353,13 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
     logging::init(config.logging.format, config.logging.level, log_target);
 
     let shutdown = Shutdown::new();
-    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+    // SIGHUP ends flyd as SIGTERM does (a safe command and a SHUTDOWN status first); there is
+    // no reload: `systemctl restart flyd` applies a new configuration.
+    for signal in [
+        signal_hook::consts::SIGTERM,
+        signal_hook::consts::SIGINT,
+        signal_hook::consts::SIGHUP,
+    ] {
         signal_hook::flag::register(signal, shutdown.flag().clone())
             .with_context(|| format!("installing the handler of signal {signal}"))?;
     }
@@ -380,10 +404,10 @@ fn run_daemon(
 fn bench_end_to_end_command(runs: usize, json: bool) -> Result<()> {
     let report = daemon::bench_end_to_end(runs)?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        say!("{}", serde_json::to_string_pretty(&report)?)?;
     } else {
         let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1} ms"));
-        println!(
+        say!(
             "end to end on {} ({}x{}, {} flies), {} runs: reaction median {}, p95 {} \
              (of which capture-to-STOP-frame pipeline, median {}); \
              {} without STOP, {} with a STOP before the obstacle",
@@ -397,7 +421,7 @@ fn bench_end_to_end_command(runs: usize, json: bool) -> Result<()> {
             ms(report.pipeline_median_ms),
             report.misses,
             report.false_stops
-        );
+        )?;
     }
     Ok(())
 }

@@ -98,7 +98,7 @@ fn bad_configs_name_the_key_and_the_file() {
         "stale_frames = 3",
         "stale_frames = 0",
         "cameras.stale_frames",
-        "at least 1",
+        "1..=30",
     );
     check(
         "mock = \"pedestrian-steps-in\"",
@@ -129,6 +129,22 @@ fn unknown_scenario_is_named_with_the_known_ones() {
 /// status.
 #[test]
 fn sigterm_sends_the_shutdown_status_and_exits_zero() {
+    signal_sends_the_shutdown_status(libc::SIGTERM);
+}
+
+#[test]
+fn sigint_sends_the_shutdown_status_and_exits_zero() {
+    signal_sends_the_shutdown_status(libc::SIGINT);
+}
+
+/// SIGHUP (a closed terminal, `kill -HUP`) used to end flyd at once (exit 129, no SHUTDOWN
+/// frames); it ends it as SIGTERM does.
+#[test]
+fn sighup_ends_flyd_as_sigterm_does() {
+    signal_sends_the_shutdown_status(libc::SIGHUP);
+}
+
+fn signal_sends_the_shutdown_status(signal: libc::c_int) {
     let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
     let text = text
         .replace("width = 640", "width = 160")
@@ -167,15 +183,15 @@ fn sigterm_sends_the_shutdown_status_and_exits_zero() {
         std::thread::sleep(Duration::from_millis(20));
     }
     // SAFETY: plain kill(2) on our own child's pid.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     let status = loop {
         if let Some(status) = child.try_wait().expect("wait") {
             break status;
         }
-        assert!(t0.elapsed() < guard, "flyd did not exit on SIGTERM");
+        assert!(t0.elapsed() < guard, "flyd did not exit on signal {signal}");
         std::thread::sleep(Duration::from_millis(10));
     };
-    assert!(status.success(), "{status:?}");
+    assert!(status.success(), "signal {signal}: {status:?}");
     let text = std::fs::read_to_string(&log).expect("log");
     let last = text.lines().last().expect("lines");
     let (_, iface, id, data) = parse_candump_line(last).expect("parses");
@@ -251,4 +267,240 @@ fn bench_runs_on_the_instruction_set_asked_for_and_refuses_a_missing_one() {
     let (ok, _, stderr) = flyd(&["bench", "--isa", "sse9"]);
     assert!(!ok);
     assert!(stderr.contains("this CPU has baseline"), "{stderr}");
+}
+
+/// stdout to a full disk (`/dev/full`) made check-config, replay and bench panic (exit 101);
+/// they exit 1 with a message.
+#[test]
+fn a_full_stdout_is_an_error_message_not_a_panic() {
+    let out = tempfile::tempdir().expect("tempdir");
+    let out_dir = out.path().display().to_string();
+    let demo = repo("config/demo.toml");
+    for args in [
+        vec!["check-config", demo.as_str()],
+        vec![
+            "replay",
+            "--scenario",
+            "empty-road",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--generations",
+            "3",
+            "--out",
+            out_dir.as_str(),
+        ],
+        vec!["bench", "--generations", "3"],
+    ] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .expect("/dev/full");
+        let o = Command::new(env!("CARGO_BIN_EXE_flyd"))
+            .args(&args)
+            .stdout(full)
+            .output()
+            .expect("flyd runs");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains("writing to standard output"),
+            "{args:?}: {stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+}
+
+/// A configuration path to /dev/zero or a 2 MB file never returned (3-4 GB of memory); both
+/// are refused before parsing, naming the file and the limit.
+#[test]
+fn configuration_files_are_size_limited_before_parsing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let big = dir.path().join("big.toml");
+    std::fs::write(&big, "#".repeat(2_000_000)).expect("write");
+    let big = big.display().to_string();
+    for (file, words) in [
+        ("/dev/zero", "not a regular file"),
+        (big.as_str(), "1048576-byte limit"),
+    ] {
+        let (ok, _, stderr) = flyd(&["check-config", file]);
+        assert!(!ok);
+        assert!(stderr.contains(file) && stderr.contains(words), "{stderr}");
+        assert!(
+            stderr.len() < 500,
+            "the error echoes the file: {} bytes",
+            stderr.len()
+        );
+    }
+    // A calibration file too.
+    let text = std::fs::read_to_string(repo("config/flyd.toml")).expect("flyd.toml");
+    let config = dir.path().join("c.toml");
+    std::fs::write(
+        &config,
+        text.replacen("file = \"rig.toml\"", "file = \"/dev/zero\"", 1),
+    )
+    .expect("write");
+    let (ok, _, stderr) = flyd(&["check-config", &config.display().to_string()]);
+    assert!(
+        !ok && stderr.contains("/dev/zero") && stderr.contains("not a regular file"),
+        "{stderr}"
+    );
+}
+
+/// The values check-config accepted although they disable safety or cannot run (issue 17's
+/// table): each is refused by check-config and by run, naming the key.
+#[test]
+fn values_that_disable_safety_are_refused() {
+    for (from, to, key, words) in [
+        (
+            "stop_threshold = 1.5",
+            "stop_threshold = 1e300",
+            "decision.stop_threshold",
+            "within",
+        ),
+        (
+            "[engine]",
+            "[engine]\nwarning_min_abs_x = 1e6",
+            "engine.warning_min_abs_x",
+            "within",
+        ),
+        (
+            "[engine]",
+            "[engine]\nwarning_min_z = 1e6",
+            "engine.warning_min_z",
+            "within",
+        ),
+        ("width = 640", "width = 16", "cameras.width", "160"),
+        ("height = 480", "height = 16", "cameras.height", "120"),
+        (
+            "stale_frames = 3",
+            "stale_frames = 4294967295",
+            "cameras.stale_frames",
+            "1..=30",
+        ),
+        (
+            "[can]",
+            "[control]\nsnapshot_timeout_ms = 999999999\n\n[can]",
+            "control.snapshot_timeout_ms",
+            "10..=1000",
+        ),
+        (
+            "[can]",
+            "[can.messages.command]\nid = 0x120\ndata_id = 0x0120\nperiod_ms = 4294967295\n\n[can]",
+            "can.messages",
+            "at most 100 ms",
+        ),
+        ("fps = 30", "fps = 3.9", "cameras.fps", "5..=120"),
+        ("fps = 30", "fps = 1e-300", "cameras.fps", "5..=120"),
+        (
+            "[decision]",
+            "[decision]\nstop_decel = 0",
+            "decision.stop_decel",
+            "> 0",
+        ),
+        (
+            "[decision]",
+            "[decision]\nslow_decel = 9\nstop_decel = 9.5\nmargin_m = 1e9",
+            "decision.margin_m",
+            "0..=20",
+        ),
+        (
+            "[evolution]",
+            "[evolution]\nblind_matched = 0",
+            "evolution.blind_matched",
+            "0.05",
+        ),
+        (
+            "[can]",
+            "[vehicle]\nassumed_speed_kmh = 0\n\n[can]",
+            "vehicle.assumed_speed_kmh",
+            "10..=250",
+        ),
+        (
+            "log_interface = \"vcan0\"",
+            "log_interface = \"abcdefghijabcdefghijabcdefghij1234\"",
+            "can.log_interface",
+            "1 to 15",
+        ),
+        (
+            "log_interface = \"vcan0\"",
+            "log_interface = \"vcan0\\nINJECTED\"",
+            "can.log_interface",
+            "1 to 15",
+        ),
+    ] {
+        eprintln!("case: {to}");
+        check(from, to, key, words);
+    }
+}
+
+/// The rig TOML's `[search]` was honoured by replay and ignored by the daemon: check-config
+/// (what run starts with) takes its depth range.
+#[test]
+fn the_calibrations_search_range_is_honoured_by_the_daemon() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rig = std::fs::read_to_string(repo("tests/fixtures/calib/rig_explicit.toml")).expect("rig");
+    assert!(rig.contains("min_depth = 1.0\nmax_depth = 25.0"));
+    std::fs::write(
+        dir.path().join("rig.toml"),
+        rig.replace(
+            "min_depth = 1.0\nmax_depth = 25.0",
+            "min_depth = 2.0\nmax_depth = 30.0",
+        ),
+    )
+    .expect("write");
+    let text = std::fs::read_to_string(repo("config/flyd.toml")).expect("flyd.toml");
+    let config = dir.path().join("flyd.toml");
+    std::fs::write(&config, text).expect("write");
+    let (ok, stdout, stderr) = flyd(&["check-config", &config.display().to_string()]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("depths 2-30 m"), "{stdout}");
+}
+
+/// A truncated JPEG was decoded silently as another image (grey where the data stopped); it is
+/// an error naming the file.
+#[test]
+fn a_truncated_jpeg_in_replay_is_an_error_naming_the_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let img = image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, 90])
+    });
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new(&mut jpeg)
+        .encode_image(&img)
+        .expect("encode");
+    let whole = dir.path().join("whole.jpg");
+    let cut = dir.path().join("cut.jpg");
+    std::fs::write(&whole, &jpeg).expect("write");
+    std::fs::write(&cut, &jpeg[..jpeg.len() * 2 / 3]).expect("write");
+    let pair = repo("tests/fixtures/kitti/kitti2015_train_000000");
+    let out = dir.path().join("out").display().to_string();
+    let replay = |left: &Path| {
+        flyd(&[
+            "replay",
+            "--left",
+            &left.display().to_string(),
+            "--right",
+            &format!("{pair}/im1.png"),
+            "--calib",
+            &format!("{pair}/rig.toml"),
+            "--generations",
+            "1",
+            "--out",
+            &out,
+        ])
+    };
+    let (ok, _, stderr) = replay(&cut);
+    assert!(!ok);
+    assert!(
+        stderr.contains(&cut.display().to_string()) && stderr.contains("truncated"),
+        "{stderr}"
+    );
+    // The whole file decodes (and is then refused for its size, not its content).
+    let (ok, _, stderr) = replay(&whole);
+    assert!(
+        !ok && !stderr.contains("truncated") && stderr.contains("64x48"),
+        "{stderr}"
+    );
 }

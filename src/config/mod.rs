@@ -19,7 +19,7 @@ use thiserror::Error;
 
 use crate::capture::CaptureFormat;
 pub use crate::daemon::mock_camera::{FaultCamera, FaultKind, MAX_MOCK_FAULTS, MockFault};
-use flyd_core::calib::{self, CalibError};
+use flyd_core::calib::{self, CalibError, Calibration};
 use flyd_core::can::CanConfig;
 use flyd_core::decision::Command;
 use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
@@ -310,7 +310,7 @@ impl DaemonConfig {
 
     /// Reads and checks a config file (syntax, types, values; not the calibration file).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io {
+        let text = flyd_core::textfile::read(path).map_err(|error| ConfigError::Io {
             file: path.to_path_buf(),
             error,
         })?;
@@ -340,27 +340,37 @@ impl DaemonConfig {
 
     /// The rig at the cameras' size, as the engine will use it.
     pub fn load_rig(&self) -> Result<StereoRig, ConfigError> {
+        self.load_calibration().map(|c| c.rig)
+    }
+
+    /// The calibration (the rig at the cameras' size, and a file's `[search]`: depth range and
+    /// whether there is a road).
+    pub fn load_calibration(&self) -> Result<Calibration, ConfigError> {
         let file = self.file_for_messages();
         let invalid = |reason: String| ConfigError::Invalid {
             file: file.clone(),
             key: "calibration".into(),
             reason,
         };
-        let rig = match &self.calibration {
-            CalibrationSource::Rig(rig) => (**rig).clone(),
-            CalibrationSource::File(path) => {
-                calib::load(path)
-                    .map_err(|error| ConfigError::Calibration {
-                        file: file.clone(),
-                        error,
-                    })?
-                    .rig
-            }
-            CalibrationSource::BuiltinMock => {
-                crate::mock::mock_rig(self.cameras.width, self.cameras.height)
-                    .map_err(|e| invalid(format!("built-in mock rig: {e}")))?
-            }
+        let built = |rig: StereoRig| Calibration {
+            rig,
+            depth_range: None,
+            has_road: true,
         };
+        let cal = match &self.calibration {
+            CalibrationSource::Rig(rig) => built((**rig).clone()),
+            CalibrationSource::File(path) => {
+                calib::load(path).map_err(|error| ConfigError::Calibration {
+                    file: file.clone(),
+                    error,
+                })?
+            }
+            CalibrationSource::BuiltinMock => built(
+                crate::mock::mock_rig(self.cameras.width, self.cameras.height)
+                    .map_err(|e| invalid(format!("built-in mock rig: {e}")))?,
+            ),
+        };
+        let rig = &cal.rig;
         for (side, cam) in [("left", &rig.left), ("right", &rig.right)] {
             if (cam.width(), cam.height()) != (self.cameras.width, self.cameras.height) {
                 return Err(invalid(format!(
@@ -373,15 +383,20 @@ impl DaemonConfig {
                 )));
             }
         }
-        Ok(rig)
+        Ok(cal)
     }
 }
 
 /// Everything start-up checks before opening any device: the config, the calibration, and an
 /// engine built once on them (common field of view over the depth range).
+///
+/// A calibration file's `[search]` is honoured as replay honours it: its depth range replaces
+/// `engine.min_depth`/`max_depth`, and `road = false` turns the road region of interest off.
 pub fn check(path: &Path) -> Result<DaemonConfig, ConfigError> {
-    let config = DaemonConfig::load(path)?;
-    let rig = config.load_rig()?;
+    let mut config = DaemonConfig::load(path)?;
+    let cal = config.load_calibration()?;
+    cal.apply_to(&mut config.engine);
+    let rig = cal.rig;
     Engine::new(&rig, config.engine.clone()).map_err(|e| {
         let key = match &e {
             EngineError::Param(p) => format!("engine.{}", p.key),

@@ -115,10 +115,11 @@ impl Default for RawVehicle {
 impl RawVehicle {
     fn resolve(self) -> Result<VehicleConfig, Invalid> {
         let v = self.assumed_speed_kmh;
-        if !(v.is_finite() && (0.0..=250.0).contains(&v)) {
+        // A low assumed speed shortens every stopping distance: 0 would stop for nothing.
+        if !(v.is_finite() && (10.0..=250.0).contains(&v)) {
             return bad(
                 "vehicle.assumed_speed_kmh",
-                format!("must be within 0..=250 km/h, got {v}"),
+                format!("must be within 10..=250 km/h, got {v}"),
             );
         }
         Ok(VehicleConfig {
@@ -237,6 +238,36 @@ impl Default for RawLogging {
             stats_interval_s: 10.0,
         }
     }
+}
+
+/// Image sizes and frame rates a configuration may ask for.
+const MIN_WIDTH: u32 = 160;
+const MIN_HEIGHT: u32 = 120;
+const MAX_SIDE: u32 = 4096;
+const MIN_FPS: f64 = 5.0;
+const MAX_FPS: f64 = 120.0;
+/// Longest a camera may deliver nothing before it is stale, seconds.
+const MAX_STALE_S: f64 = 1.0;
+
+/// A Linux network interface name (IFNAMSIZ: at most 15 bytes) of letters, digits, `-`, `_`
+/// and `.`: what `ip link` accepts and what a candump line can carry unquoted.
+fn check_iface(key: &str, name: &str) -> Result<(), Invalid> {
+    let ok_char = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+    if name.is_empty()
+        || name.len() > 15
+        || !name.chars().all(ok_char)
+        || name == "."
+        || name == ".."
+    {
+        let shown: String = name.escape_debug().take(40).collect();
+        return bad(
+            key,
+            format!(
+                "must be an interface name of 1 to 15 letters, digits, '-', '_' or '.', got \"{shown}\""
+            ),
+        );
+    }
+    Ok(())
 }
 
 /// A positive, finite number of milliseconds.
@@ -365,30 +396,69 @@ impl RawCameras {
             (None, _, None) => return bad("cameras.left", "missing (or give cameras.mock)"),
             (_, None, None) => return bad("cameras.right", "missing (or give cameras.mock)"),
         };
-        if !(16..=8192).contains(&self.width) {
+        // Smaller images cannot resolve a pedestrian at the stopping distance; larger ones are
+        // more than a capture thread prepares in a frame period.
+        if !(MIN_WIDTH..=MAX_SIDE).contains(&self.width) {
             return bad(
                 "cameras.width",
-                format!("must be within 16..=8192, got {}", self.width),
+                format!(
+                    "must be within {MIN_WIDTH}..={MAX_SIDE}, got {}",
+                    self.width
+                ),
             );
         }
-        if !(16..=8192).contains(&self.height) {
+        if !(MIN_HEIGHT..=MAX_SIDE).contains(&self.height) {
             return bad(
                 "cameras.height",
-                format!("must be within 16..=8192, got {}", self.height),
+                format!(
+                    "must be within {MIN_HEIGHT}..={MAX_SIDE}, got {}",
+                    self.height
+                ),
             );
         }
-        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= 1000.0) {
+        // Under 5 fps the vehicle travels 1.7 m between frames at 30 km/h and the debounce
+        // of two frames alone takes 0.4 s.
+        if !(self.fps.is_finite() && (MIN_FPS..=MAX_FPS).contains(&self.fps)) {
             return bad(
                 "cameras.fps",
-                format!("must be within (0, 1000], got {}", self.fps),
+                format!("must be within {MIN_FPS}..={MAX_FPS}, got {}", self.fps),
             );
+        }
+        if matches!(source, CameraSource::Devices { .. }) {
+            if self.fps.fract() != 0.0 {
+                return bad(
+                    "cameras.fps",
+                    format!(
+                        "V4L2 devices take a whole number of frames per second, got {}",
+                        self.fps
+                    ),
+                );
+            }
+            if self.pixel_format == CaptureFormat::Yuyv && !self.width.is_multiple_of(2) {
+                return bad(
+                    "cameras.width",
+                    format!(
+                        "{} is odd; YUYV carries pixels in pairs (an even width)",
+                        self.width
+                    ),
+                );
+            }
         }
         let tolerance = millis(
             "cameras.timestamp_tolerance_ms",
             self.timestamp_tolerance_ms,
         )?;
-        if self.stale_frames == 0 {
-            return bad("cameras.stale_frames", "must be at least 1");
+        // The stale-camera fault must come well within the watchdog (WatchdogSec=2s).
+        let stale_s = f64::from(self.stale_frames) / self.fps;
+        if !(1..=30).contains(&self.stale_frames) || stale_s > MAX_STALE_S {
+            return bad(
+                "cameras.stale_frames",
+                format!(
+                    "must be within 1..=30 and at most {MAX_STALE_S} s of frames ({} frames at {} \
+                     fps is {stale_s:.3} s)",
+                    self.stale_frames, self.fps
+                ),
+            );
         }
         Ok(CamerasConfig {
             source,
@@ -467,6 +537,9 @@ impl RawDecision {
                     DecisionConfigError::UnsafeFallback => "decision.safe_command",
                     DecisionConfigError::DecelOrder { .. } => "decision.slow_decel",
                     DecisionConfigError::Margin(_) => "decision.margin_m",
+                    DecisionConfigError::OutOfRange { key, .. } => {
+                        return bad(&format!("decision.{key}"), e.to_string());
+                    }
                     DecisionConfigError::Decel { command, .. } => {
                         if command == Command::Slow {
                             "decision.slow_decel"
@@ -491,24 +564,46 @@ impl RawEvolution {
                 self.generation_period_ms,
             )?)
         };
+        if generation_period.is_some_and(|p| p > Duration::from_millis(100)) {
+            return bad(
+                "evolution.generation_period_ms",
+                format!(
+                    "must be 0 or within (0, 100] ms, got {}",
+                    self.generation_period_ms
+                ),
+            );
+        }
         let max_generation_time = millis("evolution.max_generation_ms", self.max_generation_ms)?;
+        if max_generation_time > Duration::from_secs(1) {
+            return bad(
+                "evolution.max_generation_ms",
+                format!(
+                    "must be within (0, 1000] ms, got {}",
+                    self.max_generation_ms
+                ),
+            );
+        }
+        if self.warmup_generations > 10_000 {
+            return bad(
+                "evolution.warmup_generations",
+                format!("must be within 0..=10000, got {}", self.warmup_generations),
+            );
+        }
         if !(1..=1000).contains(&self.burst_generations) {
             return bad("evolution.burst_generations", "must be within 1..=1000");
         }
         if !(1..=65_536).contains(&self.snapshot_queue) {
             return bad("evolution.snapshot_queue", "must be within 1..=65536");
         }
-        if self.skew_fault_rejects == 0 {
-            return bad("evolution.skew_fault_rejects", "must be at least 1");
+        if !(1..=30).contains(&self.skew_fault_rejects) {
+            return bad("evolution.skew_fault_rejects", "must be within 1..=30");
         }
-        if !(0.0..=1.0).contains(&self.blind_matched) {
-            return bad(
-                "evolution.blind_matched",
-                "must be within [0, 1] (0 disables the check)",
-            );
+        // 0 would disable the check; healthy images give 0.73-0.97 (docs/tuning.md).
+        if !(0.05..=0.6).contains(&self.blind_matched) {
+            return bad("evolution.blind_matched", "must be within [0.05, 0.6]");
         }
-        if self.blind_pairs == 0 {
-            return bad("evolution.blind_pairs", "must be at least 1");
+        if !(1..=30).contains(&self.blind_pairs) {
+            return bad("evolution.blind_pairs", "must be within 1..=30");
         }
         Ok(EvolutionConfig {
             generation_period,
@@ -525,23 +620,37 @@ impl RawEvolution {
 
 impl RawControl {
     fn resolve(self) -> Result<ControlConfig, Invalid> {
+        let within = |key: &str, ms: f64, lo: f64, hi: f64| {
+            if ms.is_finite() && (lo..=hi).contains(&ms) {
+                Ok(Duration::from_secs_f64(ms / 1e3))
+            } else {
+                bad(key, format!("must be within {lo}..={hi} ms, got {ms}"))
+            }
+        };
         Ok(ControlConfig {
-            snapshot_timeout: millis("control.snapshot_timeout_ms", self.snapshot_timeout_ms)?,
-            startup_timeout: millis("control.startup_timeout_ms", self.startup_timeout_ms)?,
+            // A frozen evolution thread must be a fault well within the watchdog.
+            snapshot_timeout: within(
+                "control.snapshot_timeout_ms",
+                self.snapshot_timeout_ms,
+                10.0,
+                1000.0,
+            )?,
+            startup_timeout: within(
+                "control.startup_timeout_ms",
+                self.startup_timeout_ms,
+                100.0,
+                60_000.0,
+            )?,
         })
     }
 }
 
 impl RawCan {
     fn resolve(self, base: &Path) -> Result<CanSection, Invalid> {
+        check_iface("can.log_interface", &self.log_interface)?;
         let target = match (self.interface, self.log) {
             (Some(iface), None) => {
-                if iface.is_empty() || iface.len() > 15 {
-                    return bad(
-                        "can.interface",
-                        "must be an interface name of 1 to 15 bytes",
-                    );
-                }
+                check_iface("can.interface", &iface)?;
                 CanTarget::Interface(iface)
             }
             (None, Some(log)) => CanTarget::Log {

@@ -158,7 +158,7 @@ fn impossible_values_are_named() {
     check_err(
         &with("vehicle", "assumed_speed_kmh = 400"),
         "vehicle.assumed_speed_kmh",
-        "0..=250",
+        "10..=250",
     );
     check_err(
         &with("perception.obstacle", "min_height = 2.5"),
@@ -188,12 +188,12 @@ fn impossible_values_are_named() {
     check_err(
         &with("cameras", "stale_frames = 0"),
         "cameras.stale_frames",
-        "at least 1",
+        "1..=30",
     );
     check_err(
         &with("evolution", "blind_pairs = 0"),
         "evolution.blind_pairs",
-        "at least 1",
+        "1..=30",
     );
     check_err(
         &with("evolution", "burst_generations = 0"),

@@ -219,10 +219,13 @@ pub fn run(
         right_writer.counters().clone(),
     ];
     let evolution_counters = Arc::new(EvolutionCounters::default());
+    // At least a frame period, at most 250 ms (a stop request is seen within that).
+    let max_poll = Duration::from_millis(250);
     let poll_timeout = config
         .cameras
         .stale_timeout()
-        .clamp(config.cameras.frame_period(), Duration::from_millis(250));
+        .max(config.cameras.frame_period().min(max_poll))
+        .min(max_poll);
 
     let mut threads = Threads {
         captures: Vec::new(),

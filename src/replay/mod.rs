@@ -67,6 +67,8 @@ pub enum ReplayError {
         #[source]
         source: image::ImageError,
     },
+    #[error("{path}: truncated or corrupt image: {what}")]
+    Truncated { path: String, what: &'static str },
     #[error("calibration")]
     Calibration(#[from] CalibError),
     #[error(
@@ -292,11 +294,34 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
 }
 
 /// Loads an image file as RGB8.
+///
+/// A JPEG must end with its end-of-image marker: the decoder fills a truncated one with grey
+/// and says nothing, which would replay a different image than the file's. (A truncated PNG
+/// fails its own checks.)
 pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
-    image::open(path)
+    let name = || path.display().to_string();
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    // The content says what it is; failing that, the extension (so that a damaged PNG is
+    // reported by the PNG decoder).
+    let format = image::guess_format(&bytes)
+        .or_else(|_| image::ImageFormat::from_path(path))
+        .map_err(|source| ReplayError::Image {
+            path: name(),
+            source,
+        })?;
+    if format == image::ImageFormat::Jpeg {
+        let end = bytes.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+        if !bytes[..end].ends_with(&[0xFF, 0xD9]) {
+            return Err(ReplayError::Truncated {
+                path: name(),
+                what: "JPEG without its end-of-image marker (FF D9)",
+            });
+        }
+    }
+    image::load_from_memory_with_format(&bytes, format)
         .map(|i| i.to_rgb8())
         .map_err(|source| ReplayError::Image {
-            path: path.display().to_string(),
+            path: name(),
             source,
         })
 }

@@ -67,6 +67,20 @@ pub struct Calibration {
     pub has_road: bool,
 }
 
+impl Calibration {
+    /// What the file says about the search: its depth range replaces the engine's, and a scene
+    /// without a road turns the road region of interest off.
+    pub fn apply_to(&self, params: &mut crate::engine::EngineParams) {
+        if let Some((min, max)) = self.depth_range {
+            params.min_depth = min;
+            params.max_depth = max;
+        }
+        if !self.has_road {
+            params.roi = None;
+        }
+    }
+}
+
 /// Why a calibration file cannot be used. Each message names the file (and the field); a
 /// wrapped cause is its [`std::error::Error::source`], not part of the message.
 #[derive(Debug, thiserror::Error)]
@@ -170,7 +184,7 @@ pub fn load_sized(path: &Path, size: (u32, u32)) -> Result<Calibration, CalibErr
 }
 
 fn load_file(path: &Path, size: Option<(u32, u32)>) -> Result<Calibration, CalibError> {
-    let text = std::fs::read_to_string(path).map_err(|error| CalibError::Io {
+    let text = crate::textfile::read(path).map_err(|error| CalibError::Io {
         file: path.to_path_buf(),
         error,
     })?;
@@ -339,6 +353,14 @@ const MAX_BASELINE_M: f64 = 5.0;
 /// Depth of the overlap check when the file gives no depth range.
 const DEFAULT_OVERLAP_DEPTH_M: f64 = 10.0;
 
+/// Where a camera on the vehicle can be, metres from the vehicle origin (on the road, at the
+/// vehicle's axis): beside the axis, above the road, along it.
+const MAX_MOUNT_LATERAL_M: f64 = 2.0;
+const MAX_MOUNT_HEIGHT_M: f64 = 5.0;
+const MAX_MOUNT_LONGITUDINAL_M: f64 = 10.0;
+/// cos 45 degrees: how far from the forward axis a camera may look.
+const MIN_FORWARD_COS: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
 /// Which fields to blame when the rig as a whole is inconsistent.
 struct RigFields<'a> {
     baseline: &'a str,
@@ -364,6 +386,40 @@ fn check_rig(
                  more than 0 and less than {MAX_BASELINE_M} m"
             ),
         ));
+    }
+    for (side, cam) in [("left", &rig.left), ("right", &rig.right)] {
+        let c = cam.centre();
+        let near = c.x.abs() <= MAX_MOUNT_LATERAL_M
+            && (-1.0..=MAX_MOUNT_HEIGHT_M).contains(&c.y)
+            && c.z.abs() <= MAX_MOUNT_LONGITUDINAL_M;
+        if !near {
+            return Err(field_error(
+                file,
+                fields.overlap,
+                format!(
+                    "the {side} camera is at x = {:.2}, y = {:.2}, z = {:.2} m: a camera on the \
+                     vehicle is within {MAX_MOUNT_LATERAL_M} m of its axis, -1..={MAX_MOUNT_HEIGHT_M} \
+                     m above the road and {MAX_MOUNT_LONGITUDINAL_M} m of its origin",
+                    c.x, c.y, c.z
+                ),
+            ));
+        }
+        // The optical axis in the vehicle frame (x right, y up, z forward).
+        let k = cam.intrinsics();
+        let axis = cam
+            .vehicle_from_pixel_depth(k.cx, k.cy, 1.0)
+            .map(|p| (p - c).normalize());
+        if axis.is_none_or(|a| a.z.is_nan() || a.z < MIN_FORWARD_COS) {
+            let deg = axis.map_or(f64::NAN, |a| a.z.clamp(-1.0, 1.0).acos().to_degrees());
+            return Err(field_error(
+                file,
+                fields.overlap,
+                format!(
+                    "the {side} camera looks {deg:.0} degrees away from the vehicle's forward \
+                     axis: a camera that detects obstacles ahead looks within 45 degrees of it"
+                ),
+            ));
+        }
     }
     let depth = depth_range.map_or(DEFAULT_OVERLAP_DEPTH_M, |(min, max)| (min * max).sqrt());
     let k = rig.left.intrinsics();

@@ -149,6 +149,13 @@ pub enum DecisionConfigError {
     DecelOrder { slow: f64, stop: f64 },
     #[error("margin must be finite and >= 0, got {0}")]
     Margin(f64),
+    /// A value beyond what a vehicle can mean (the bounds are the variant's `range`).
+    #[error("{key} must be within {range}, got {value}")]
+    OutOfRange {
+        key: &'static str,
+        value: f64,
+        range: &'static str,
+    },
 }
 
 impl DecisionConfig {
@@ -182,6 +189,42 @@ impl DecisionConfig {
         }
         if !(self.margin.is_finite() && self.margin >= 0.0) {
             return Err(DecisionConfigError::Margin(self.margin));
+        }
+        // What a vehicle can mean: a threshold the CAN signal can carry (GlobalWarning
+        // saturates at 65.534), decelerations a car brakes with (1 g is ~9.8 m/s^2), reaction
+        // times and margins of metres and seconds, holds under a minute.
+        let secs = |d: Duration| d.as_secs_f64();
+        let checks: [(&'static str, f64, f64, f64, &'static str); 7] = [
+            ("stop_threshold", stop, 0.0, 65.0, "(0, 65]"),
+            ("slow_decel", self.slow_decel, 0.5, 10.0, "0.5..=10 m/s^2"),
+            ("stop_decel", self.stop_decel, 1.0, 10.0, "1..=10 m/s^2"),
+            (
+                "reaction_time_ms",
+                secs(self.reaction_time) * 1e3,
+                0.0,
+                3000.0,
+                "0..=3000 ms",
+            ),
+            ("margin_m", self.margin, 0.0, 20.0, "0..=20 m"),
+            (
+                "slow_hold_ms",
+                secs(self.slow_hold) * 1e3,
+                0.0,
+                60_000.0,
+                "(0, 60000] ms",
+            ),
+            (
+                "stop_hold_ms",
+                secs(self.stop_hold) * 1e3,
+                0.0,
+                60_000.0,
+                "(0, 60000] ms",
+            ),
+        ];
+        for (key, value, lo, hi, range) in checks {
+            if !(lo..=hi).contains(&value) {
+                return Err(DecisionConfigError::OutOfRange { key, value, range });
+            }
         }
         Ok(())
     }

@@ -191,7 +191,15 @@ impl Camera {
             height,
             intrinsics,
             distortion,
-            rotation: Rotation3::from_matrix(&rotation),
+            // Not `from_matrix`: its iteration starts at the identity and stays there for a
+            // rotation of 180 degrees (a camera turned round was modelled as unrotated). The
+            // matrix is orthonormal within 1e-4 (checked above): renormalising from itself only
+            // removes that error.
+            rotation: {
+                let mut r = Rotation3::from_matrix_unchecked(rotation);
+                r.renormalize();
+                r
+            },
             centre,
         })
     }

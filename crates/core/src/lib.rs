@@ -25,3 +25,4 @@ pub mod sensor;
 pub mod status;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
+pub mod textfile;

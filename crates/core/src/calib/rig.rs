@@ -367,7 +367,7 @@ fn import_any(
         field: "import.file".to_string(),
         error: Box::new(error),
     };
-    let text = std::fs::read_to_string(&path).map_err(|error| {
+    let text = crate::textfile::read(&path).map_err(|error| {
         as_import(CalibError::Io {
             file: path.clone(),
             error,
@@ -531,7 +531,7 @@ fn imported_rig(
         .parent()
         .unwrap_or_else(|| Path::new(""))
         .join(&import.file);
-    let text = std::fs::read_to_string(&yaml_path).map_err(|e| {
+    let text = crate::textfile::read(&yaml_path).map_err(|e| {
         field_error(
             file,
             "opencv.file",

@@ -334,7 +334,7 @@ fn broken_opencv_files() {
     );
     check_err(
         "broken/yml_non_overlapping.yml",
-        &["'R, T'", "do not overlap"],
+        &["'R, T'", "degrees away from the vehicle's forward axis"],
     );
     check_err("broken/yml_syntax_error.yml", &["'D2'", "invalid YAML"]);
 }
@@ -447,7 +447,7 @@ fn broken_rig_files() {
     );
     check_err(
         "broken/toml_non_overlapping.toml",
-        &["'right'", "do not overlap"],
+        &["'right'", "degrees away from the vehicle's forward axis"],
     );
     check_err("broken/toml_both_sources.toml", &["'opencv'", "not both"]);
     check_err("broken/toml_mount_without_opencv.toml", &["'mount'"]);
@@ -829,4 +829,66 @@ fn an_import_checks_what_it_is_given() {
         1e-12,
         "baseline",
     );
+}
+
+/// A simple rig TOML: both cameras 1.2 m up, 0.2 m apart; `right` replaces the right camera's
+/// pose lines.
+fn rig_with_right(right_pose: &str) -> String {
+    format!(
+        "[left]\nwidth = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+         position = [-0.1, 1.2, 0.0]\n[right]\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+         {right_pose}\n"
+    )
+}
+
+/// A right camera turned round by a rotation matrix (180 degrees about the vertical axis, as
+/// OpenCV's R = diag(-1, 1, -1)) was accepted and modelled as unrotated; it is modelled as it
+/// is, and refused like yaw_deg = 180.
+#[test]
+fn a_camera_turned_round_by_its_rotation_matrix_is_refused() {
+    let turned = "position = [0.1, 1.2, 0.0]\nrotation = [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]";
+    let by_angle = "position = [0.1, 1.2, 0.0]\nyaw_deg = 180.0";
+    for pose in [turned, by_angle] {
+        let e = parse_rig_toml(&rig_with_right(pose), Path::new("inline.toml"))
+            .expect_err(pose)
+            .to_string();
+        assert!(e.contains("inline.toml"), "{e}");
+        assert!(e.contains("looks 180 degrees away"), "{pose}: {e}");
+    }
+    // The rotation is kept as given (the camera model, not only the check).
+    let r = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(-1.0, 1.0, -1.0));
+    let cam = crate::geometry::Camera::new(
+        64,
+        48,
+        crate::geometry::Intrinsics {
+            fx: 50.0,
+            fy: 50.0,
+            cx: 32.0,
+            cy: 24.0,
+        },
+        crate::geometry::Distortion::default(),
+        r,
+        nalgebra::Point3::new(0.0, 1.0, 0.0),
+    )
+    .expect("a proper rotation");
+    assert!((cam.rotation().matrix() - r).abs().max() < 1e-12);
+    // A camera looking 10 degrees aside is still a camera ahead.
+    let aside = "position = [0.1, 1.2, 0.0]\nyaw_deg = 10.0";
+    assert!(parse_rig_toml(&rig_with_right(aside), Path::new("inline.toml")).is_ok());
+}
+
+/// A rig placed 20 m (or 1e6 m) beside the vehicle origin was accepted (CLEAR with a
+/// pedestrian ahead); a camera must be on the vehicle.
+#[test]
+fn a_rig_far_from_the_vehicle_origin_is_refused() {
+    for (left, right) in [(20.0, 20.2), (1e6, 1e6 + 0.2)] {
+        let text = rig_with_right(&format!("position = [{right:?}, 1.2, 0.0]")).replace(
+            "position = [-0.1, 1.2, 0.0]",
+            &format!("position = [{left:?}, 1.2, 0.0]"),
+        );
+        let e = parse_rig_toml(&text, Path::new("inline.toml"))
+            .expect_err("far away")
+            .to_string();
+        assert!(e.contains("within 2 m of its axis"), "{left}: {e}");
+    }
 }

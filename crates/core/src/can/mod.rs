@@ -97,6 +97,13 @@ pub enum CanConfigError {
     },
     #[error("{message}: period must be at least 1 ms")]
     ZeroPeriod { message: &'static str },
+    /// Receivers time out after a few periods: a longer one hides a dead sender.
+    #[error("{message}: period must be at most {max} ms, got {got}")]
+    PeriodTooLong {
+        message: &'static str,
+        max: u32,
+        got: u32,
+    },
 }
 
 impl CanConfig {
@@ -116,6 +123,20 @@ impl CanConfig {
             }
             if m.period_ms == 0 {
                 return Err(CanConfigError::ZeroPeriod { message });
+            }
+            // The command and the status are what the VCU watches for a live flyd (3 missed
+            // periods); the obstacle is information.
+            let max = if message == ObstacleMsg::NAME {
+                1000
+            } else {
+                100
+            };
+            if m.period_ms > max {
+                return Err(CanConfigError::PeriodTooLong {
+                    message,
+                    max,
+                    got: m.period_ms,
+                });
             }
         }
         for (i, (a, ma)) in named.iter().enumerate() {

@@ -257,11 +257,19 @@ impl EngineParams {
             }
             unit("roi.penalty", roi.penalty)?;
         }
-        if !(self.warning_min_abs_x.is_finite() && self.warning_min_abs_x > 0.0) {
-            return err("warning_min_abs_x", "must be > 0".into());
+        // The paper's clamps of the warning F / (x^2 z): larger ones flatten every warning
+        // (1e6 m made a pedestrian 4 m ahead read as nothing).
+        if !(self.warning_min_abs_x.is_finite() && (0.01..=2.0).contains(&self.warning_min_abs_x)) {
+            return err(
+                "warning_min_abs_x",
+                format!("must be within 0.01..=2 m, got {}", self.warning_min_abs_x),
+            );
         }
-        if !(self.warning_min_z.is_finite() && self.warning_min_z > 0.0) {
-            return err("warning_min_z", "must be > 0".into());
+        if !(self.warning_min_z.is_finite() && (0.01..=5.0).contains(&self.warning_min_z)) {
+            return err(
+                "warning_min_z",
+                format!("must be within 0.01..=5 m, got {}", self.warning_min_z),
+            );
         }
         Ok(())
     }
