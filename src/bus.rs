@@ -369,6 +369,110 @@ impl CanBus for SocketCanBus {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// ReopeningBus
+
+/// A bus that is reopened when its device goes away: a USB CAN adapter re-enumerating, an
+/// interface deleted and created again, or one that does not exist yet when flyd starts.
+///
+/// A send on a missing device (ENODEV/ENXIO, [`BusError::NoDevice`]) drops the handle; later
+/// sends try to open it again, at most once per backoff (50 ms doubling to 2 s, reset by a
+/// successful open), and fail with `NoDevice` meanwhile (CAN_TX_ERROR, the frame is lost: the
+/// next period sends a fresh one). Opening and reopening are logged once per episode.
+pub struct ReopeningBus<B, F> {
+    open: F,
+    bus: Option<B>,
+    clock: Box<dyn Clock>,
+    /// When the next open may be tried, and the backoff after it.
+    next_try: Duration,
+    backoff: Duration,
+    name: String,
+    /// The error of the last failed open.
+    last_error: BusError,
+}
+
+const REOPEN_BACKOFF_MIN: Duration = Duration::from_millis(50);
+const REOPEN_BACKOFF_MAX: Duration = Duration::from_secs(2);
+
+impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
+    /// Opens the bus with `open` now; a missing device is not an error (it is waited for),
+    /// any other failure is (a kernel without CAN, a permission denied).
+    pub fn new(name: &str, mut open: F, clock: impl Clock + 'static) -> Result<Self, BusError> {
+        let now = clock.now();
+        let (bus, last_error) = match open() {
+            Ok(bus) => (
+                Some(bus),
+                BusError::NoDevice {
+                    errno: libc::ENODEV,
+                },
+            ),
+            Err(e @ BusError::NoDevice { .. }) => {
+                tracing::warn!(
+                    interface = name, error = %e,
+                    "CAN interface missing: waiting for it (safe command and status as soon as it \
+                     appears; CAN_TX_ERROR meanwhile)"
+                );
+                (None, e)
+            }
+            Err(e) => return Err(e),
+        };
+        Ok(Self {
+            open,
+            bus,
+            clock: Box::new(clock),
+            next_try: now + REOPEN_BACKOFF_MIN,
+            backoff: REOPEN_BACKOFF_MIN,
+            name: name.to_owned(),
+            last_error,
+        })
+    }
+
+    /// Whether a handle is open.
+    pub fn is_open(&self) -> bool {
+        self.bus.is_some()
+    }
+
+    fn try_open(&mut self) -> Result<&mut B, BusError> {
+        let now = self.clock.now();
+        if self.bus.is_none() {
+            if now < self.next_try {
+                return Err(self.last_error.clone());
+            }
+            match (self.open)() {
+                Ok(bus) => {
+                    tracing::info!(interface = %self.name, "CAN interface (re)opened");
+                    self.backoff = REOPEN_BACKOFF_MIN;
+                    self.bus = Some(bus);
+                }
+                Err(e) => {
+                    self.backoff = (self.backoff * 2).min(REOPEN_BACKOFF_MAX);
+                    self.next_try = now + self.backoff;
+                    self.last_error = e.clone();
+                    return Err(e);
+                }
+            }
+        }
+        self.bus.as_mut().ok_or_else(|| self.last_error.clone())
+    }
+}
+
+impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> CanBus for ReopeningBus<B, F> {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        let result = self.try_open()?.send(id, data);
+        if let Err(e @ BusError::NoDevice { .. }) = &result {
+            tracing::warn!(
+                interface = %self.name, error = %e,
+                "CAN interface gone: reopening it with backoff"
+            );
+            self.bus = None;
+            self.last_error = e.clone();
+            self.next_try = self.clock.now() + REOPEN_BACKOFF_MIN;
+            self.backoff = REOPEN_BACKOFF_MIN;
+        }
+        result
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -656,5 +760,63 @@ mod tests {
             }
         }
         assert_eq!(commands, 3);
+    }
+
+    /// An adapter that vanishes (ENODEV) is reopened with backoff, and one missing at start is
+    /// waited for; other open failures stay errors.
+    #[test]
+    fn a_vanished_interface_is_reopened_with_backoff() {
+        let clock = ManualClock::new(Duration::from_secs(1));
+        let present = Arc::new(Mutex::new(false));
+        let opens = Arc::new(Mutex::new(0u32));
+        let bus = MemoryBus::new(clock.clone());
+        let (p, o, b) = (present.clone(), opens.clone(), bus.clone());
+        let mut r = ReopeningBus::new(
+            "vcan0",
+            move || {
+                *o.lock().unwrap_or_else(PoisonError::into_inner) += 1;
+                if *p.lock().unwrap_or_else(PoisonError::into_inner) {
+                    Ok(b.clone())
+                } else {
+                    Err(BusError::NoDevice {
+                        errno: libc::ENODEV,
+                    })
+                }
+            },
+            clock.clone(),
+        )
+        .expect("a missing interface is waited for");
+        let count = || *opens.lock().unwrap_or_else(PoisonError::into_inner);
+        assert!(!r.is_open());
+        assert!(matches!(
+            r.send(0x120, &[1]),
+            Err(BusError::NoDevice { .. })
+        ));
+        assert_eq!(count(), 1, "no retry before the backoff");
+        clock.advance(Duration::from_millis(50));
+        assert!(r.send(0x120, &[1]).is_err());
+        assert_eq!(count(), 2);
+        clock.advance(Duration::from_millis(60));
+        assert!(r.send(0x120, &[1]).is_err());
+        assert_eq!(count(), 2, "the backoff doubled to 100 ms");
+        *present.lock().unwrap_or_else(PoisonError::into_inner) = true;
+        clock.advance(Duration::from_millis(40));
+        assert_eq!(r.send(0x120, &[2]), Ok(()));
+        assert_eq!(count(), 3);
+        assert_eq!(bus.frames().len(), 1);
+        // The adapter vanishes: the send fails, the handle is dropped and reopened later.
+        bus.fail_next(BusError::NoDevice { errno: libc::ENXIO });
+        assert!(r.send(0x120, &[3]).is_err());
+        assert!(!r.is_open());
+        clock.advance(Duration::from_millis(50));
+        assert_eq!(r.send(0x120, &[4]), Ok(()));
+        assert_eq!(count(), 4);
+        // Other open failures are errors at start.
+        let e = ReopeningBus::new(
+            "x",
+            || Err::<MemoryBus, _>(BusError::Unsupported { errno: 97 }),
+            clock,
+        );
+        assert!(e.is_err());
     }
 }

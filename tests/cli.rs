@@ -394,6 +394,12 @@ fn values_that_disable_safety_are_refused() {
         ("fps = 30", "fps = 3.9", "cameras.fps", "5..=120"),
         ("fps = 30", "fps = 1e-300", "cameras.fps", "5..=120"),
         (
+            "[engine]",
+            "[engine]\nmax_depth = 20.0",
+            "engine.max_depth",
+            "SLOW distance",
+        ),
+        (
             "[decision]",
             "[decision]\nstop_decel = 0",
             "decision.stop_decel",

@@ -9,7 +9,11 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::*;
+use flyd_core::can::bus::BusError;
 use flyd_core::status::{FaultBits, State};
+
+/// The test's `control.can_silence`.
+const SILENCE: Duration = Duration::from_millis(200);
 
 fn drain(socket: &UnixDatagram) -> Vec<String> {
     let mut out = Vec::new();
@@ -39,7 +43,9 @@ fn ready_watchdog_only_while_healthy_status_and_stopping() {
         std::env::set_var("WATCHDOG_USEC", "100000");
     }
 
-    let d = start(config());
+    let mut config = config();
+    config.control.can_silence = SILENCE;
+    let d = start(config);
     d.wait_for("RUNNING", |f| {
         statuses(f).iter().any(|s| s.state == State::Running)
     });
@@ -83,6 +89,30 @@ fn ready_watchdog_only_while_healthy_status_and_stopping() {
     let mut after = Vec::new();
     while !after.iter().any(|m| m == "WATCHDOG=1\n") {
         assert!(t0.elapsed() < GUARD, "pings resume after recovery");
+        std::thread::sleep(Duration::from_millis(10));
+        after.extend(drain(&socket));
+    }
+    // CAN writes failing (the adapter gone): once no frame has gone out for `can_silence`, the
+    // pings stop, so systemd restarts a daemon that cannot send; they resume with the bus.
+    d.bus.set_failing(Some(BusError::NoDevice {
+        errno: libc::ENODEV,
+    }));
+    std::thread::sleep(SILENCE * 2);
+    drain(&socket);
+    std::thread::sleep(SILENCE * 3);
+    let silent = drain(&socket);
+    assert!(
+        !silent.iter().any(|m| m == "WATCHDOG=1\n"),
+        "no ping while nothing goes out on CAN: {silent:?}"
+    );
+    d.bus.set_failing(None);
+    let t0 = std::time::Instant::now();
+    let mut after = Vec::new();
+    while !after.iter().any(|m| m == "WATCHDOG=1\n") {
+        assert!(
+            t0.elapsed() < GUARD,
+            "pings resume when frames go out again"
+        );
         std::thread::sleep(Duration::from_millis(10));
         after.extend(drain(&socket));
     }

@@ -792,10 +792,38 @@ fn flyd_flags_a_stalled_camera_falls_back_and_recovers() {
 
 #[test]
 fn flyd_flags_a_camera_delivering_noise_and_recovers() {
-    let r = run_flyd(flyd_scenario("flyd_garbage"));
+    camera_fault_falls_back_and_recovers("flyd_garbage", "garbage", 3, "perception blind", 8);
+}
+
+/// A black right camera on a real v4l2loopback device (YUYV Y=16) used to read as a clear
+/// road (every uniform window "matched"): UNIFORM, CAMERA_ERROR, the safe command.
+#[test]
+fn flyd_flags_a_black_camera_and_recovers() {
+    camera_fault_falls_back_and_recovers("flyd_black", "black", 2, "image uniform", 1);
+}
+
+/// A right camera repeating one frame with fresh timestamps used to read as a clear road:
+/// FROZEN, CAMERA_ERROR, the safe command.
+#[test]
+fn flyd_flags_a_frozen_camera_and_recovers() {
+    camera_fault_falls_back_and_recovers("flyd_frozen", "frozen", 4, "image frozen", 2);
+}
+
+/// The right camera gets `feed` for a stretch of an empty road (scenario `name`): no
+/// CAMERA_ERROR before, CAMERA_ERROR with the `sensor` bit of FLYD_Status.SensorFaults and
+/// DEGRADED within `frames` pairs (+ the emulation's capture lag), only non-CLEAR
+/// FAULT_FALLBACK commands meanwhile, `logged` in the log, RUNNING again afterwards.
+fn camera_fault_falls_back_and_recovers(
+    name: &str,
+    feed: &str,
+    frames: usize,
+    logged: &str,
+    sensor: u8,
+) {
+    let r = run_flyd(flyd_scenario(name));
     let bus = r.check_bus();
     r.assert_exited_cleanly();
-    let (start, end) = r.episode("right", "garbage");
+    let (start, end) = r.episode("right", feed);
     let (t_start, t_end) = (r.frame_time(start.index), r.frame_time(end.index));
     let error = FaultBits::CAMERA_ERROR;
     let statuses = r.statuses_from(r.frame_time(0));
@@ -804,56 +832,68 @@ fn flyd_flags_a_camera_delivering_noise_and_recovers() {
             .iter()
             .filter(|f| f.time < t_start)
             .all(|f| !faults(f).contains(error)),
-        "CAMERA_ERROR before any garbage"
+        "CAMERA_ERROR before the {feed} frames"
     );
     let first = statuses
         .iter()
         .find(|f| f.time > t_start && faults(f).contains(error))
         .unwrap_or_else(|| {
             panic!(
-                "no CAMERA_ERROR while the right camera delivered noise; states {}",
+                "no CAMERA_ERROR while the right camera delivered {feed} frames; states {}",
                 label_counts(&statuses, "State")
             )
         });
-    assert!(first.time < t_end, "raised only after the noise ended");
-    let raise_frames = r.frames_between(t_start, first.time);
-    // flyd needs blind_pairs = 3 noisy pairs; under emulation its capture runs several frames
-    // behind the feeder (see the stalled-camera test): measured below, bound 3 + 14.
     assert!(
-        raise_frames <= 3 + 14,
-        "CAMERA_ERROR raised {raise_frames} frames after the first noisy frame"
+        first.time < t_end,
+        "raised only after the {feed} frames ended"
+    );
+    let raise_frames = r.frames_between(t_start, first.time);
+    // Under emulation flyd's capture runs several frames behind the feeder (see the stalled-
+    // camera test): bound `frames` + 14.
+    assert!(
+        raise_frames <= frames + 14,
+        "CAMERA_ERROR raised {raise_frames} frames after the first {feed} frame"
     );
     assert_eq!(first.label("State"), "DEGRADED");
+    let sensor_bits = first.value("SensorFaults") as u8;
+    assert!(
+        sensor_bits & sensor != 0,
+        "SensorFaults {sensor_bits:#x} lacks {sensor:#x} with {feed} frames"
+    );
     let commands = r.commands_from(first.time);
     let during: Vec<&&Frame> = commands.iter().filter(|f| f.time < t_end).collect();
     assert!(!during.is_empty());
     for c in &during {
-        assert_ne!(c.label("Command"), "CLEAR", "command while blind: {c:?}");
+        assert_ne!(
+            c.label("Command"),
+            "CLEAR",
+            "command with {feed} frames: {c:?}"
+        );
         assert_eq!(c.label("CommandReason"), "FAULT_FALLBACK", "{c:?}");
     }
     let cleared = statuses
         .iter()
         .find(|f| f.time > t_end && !faults(f).contains(error))
-        .expect("CAMERA_ERROR never cleared after the camera delivered real frames again");
+        .unwrap_or_else(|| panic!("CAMERA_ERROR never cleared after the {feed} frames"));
     let running = statuses
         .iter()
         .find(|f| f.time > t_end && f.label("State") == "RUNNING")
-        .expect("never RUNNING again after the noise ended");
+        .unwrap_or_else(|| panic!("never RUNNING again after the {feed} frames"));
     let (clear_frames, recover_frames) = (
         r.frames_between(t_end, cleared.time),
         r.frames_between(t_end, running.time),
     );
     assert!(
         recover_frames <= 30,
-        "RUNNING again {recover_frames} frames after the noise ended"
+        "RUNNING again {recover_frames} frames after the {feed} frames ended"
     );
-    let logged = r.logged("perception blind").len();
-    assert!(logged >= 1, "no 'perception blind' log event");
+    let n = r.logged(logged).len();
+    assert!(n >= 1, "no '{logged}' log event");
     r.run.report(&format!(
-        "right camera noise for frames {}..{}: CAMERA_ERROR + DEGRADED {raise_frames} frames \
-         after the first noisy frame, {} commands non-CLEAR/FAULT_FALLBACK meanwhile, \
-         'perception blind' logged; cleared {clear_frames} and RUNNING {recover_frames} frames \
-         after real frames returned; {bus}",
+        "right camera {feed} for frames {}..{}: CAMERA_ERROR + DEGRADED (SensorFaults \
+         {sensor_bits:#x}) {raise_frames} frames after the first, {} commands \
+         non-CLEAR/FAULT_FALLBACK meanwhile, '{logged}' logged; cleared {clear_frames} and \
+         RUNNING {recover_frames} frames after real frames returned; {bus}",
         start.index,
         end.index - 1,
         during.len()
@@ -923,6 +963,55 @@ fn flyd_survives_vcan_down_and_up_and_sends_again() {
         up - down,
         failed[0]["error"],
         (first_after.time - up) * 1e3,
+        after.len()
+    ));
+}
+
+/// The CAN adapter vanishing (`ip link del`, as a USB adapter re-enumerating) used to leave
+/// flyd DEGRADED and silent forever, watchdog still pinged: it reopens the interface once it
+/// is back and sends again.
+#[test]
+fn flyd_reopens_a_vanished_can_interface_and_sends_again() {
+    let r = run_flyd(flyd_scenario("flyd_can_vanish"));
+    let (bus, gaps) = r.check_bus_with_gaps(1.0);
+    assert_eq!(r.exit_code(), 0, "flyd must outlive the interface");
+    let (gone_frame, gone) = r.event("can-gone");
+    let (back_frame, back) = r.event("can-back");
+    let before = r
+        .commands_from(0.0)
+        .into_iter()
+        .filter(|f| f.time < gone)
+        .count();
+    let after = r.commands_from(back);
+    assert!(
+        before > 10,
+        "{before} commands before the interface vanished"
+    );
+    assert!(
+        after.len() > 20,
+        "only {} commands after the interface came back: not reopened",
+        after.len()
+    );
+    assert!(gaps >= 1, "no silence on the bus while it was gone");
+    let vanished = r.logged("CAN interface gone");
+    let reopened = r.logged("CAN interface (re)opened");
+    assert!(!vanished.is_empty(), "no 'CAN interface gone' log event");
+    assert!(
+        !reopened.is_empty(),
+        "no 'CAN interface (re)opened' log event"
+    );
+    let first_after = r
+        .frames
+        .iter()
+        .find(|f| f.time > back)
+        .expect("frames after the interface came back");
+    r.run.report(&format!(
+        "vcan0 deleted at feeder frame {gone_frame}, re-created at {back_frame} ({:.1} s): flyd \
+         kept running, logged 'CAN interface gone' {} time(s) and reopened it; sending again \
+         {:.0} ms after it came back, {} commands after; exit 0; {bus}",
+        back - gone,
+        vanished.len(),
+        (first_after.time - back) * 1e3,
         after.len()
     ));
 }

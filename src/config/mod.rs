@@ -197,6 +197,9 @@ pub struct ControlConfig {
     /// Not running (both cameras delivering, a generation done) this long after start: the
     /// stale faults are raised instead of waiting in INIT.
     pub startup_timeout: Duration,
+    /// No CAN frame sent successfully for this long: the systemd watchdog is no longer pinged
+    /// (a daemon that cannot send is restarted).
+    pub can_silence: Duration,
 }
 
 impl Default for ControlConfig {
@@ -204,6 +207,7 @@ impl Default for ControlConfig {
         Self {
             snapshot_timeout: Duration::from_millis(100),
             startup_timeout: Duration::from_secs(5),
+            can_silence: Duration::from_millis(500),
         }
     }
 }
@@ -396,6 +400,7 @@ pub fn check(path: &Path) -> Result<DaemonConfig, ConfigError> {
     let mut config = DaemonConfig::load(path)?;
     let cal = config.load_calibration()?;
     cal.apply_to(&mut config.engine);
+    check_reach(&config, path, cal.depth_range.is_some())?;
     let rig = cal.rig;
     Engine::new(&rig, config.engine.clone()).map_err(|e| {
         let key = match &e {
@@ -410,6 +415,52 @@ pub fn check(path: &Path) -> Result<DaemonConfig, ConfigError> {
         }
     })?;
     Ok(config)
+}
+
+/// In the obstacle mode, the flies must be searched, and obstacles seen, as far as the SLOW
+/// distance at the assumed speed: a shorter range would see a pedestrian only once braking
+/// can no longer stop in time.
+fn check_reach(
+    config: &DaemonConfig,
+    path: &Path,
+    from_calibration: bool,
+) -> Result<(), ConfigError> {
+    if config.decision.mode != DecisionMode::Obstacle {
+        return Ok(());
+    }
+    let speed = config.vehicle.assumed_speed;
+    let reach = config.decision.reach(Command::Slow, speed);
+    let depth_key = if from_calibration {
+        "calibration (its [search] max_depth)"
+    } else {
+        "engine.max_depth"
+    };
+    let ranges = [
+        (depth_key, config.engine.max_depth),
+        (
+            "engine.roi.max_ahead",
+            config.engine.roi.map_or(f64::INFINITY, |r| r.max_ahead),
+        ),
+        (
+            "perception.obstacle.max_distance",
+            config.perception.obstacle.max_distance,
+        ),
+    ];
+    for (key, range) in ranges {
+        if range < reach {
+            return Err(ConfigError::Invalid {
+                file: path.to_path_buf(),
+                key: key.into(),
+                reason: format!(
+                    "reaches {range} m, less than the SLOW distance at vehicle.assumed_speed_kmh \
+                     = {:.0} ({reach:.1} m): an obstacle would be seen only once braking is too \
+                     late",
+                    speed * 3.6
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The dotted key at byte `offset` of a TOML text: the `[table]` header above it and the key

@@ -195,6 +195,7 @@ impl Default for RawEvolution {
 struct RawControl {
     snapshot_timeout_ms: f64,
     startup_timeout_ms: f64,
+    can_silence_ms: f64,
 }
 
 impl Default for RawControl {
@@ -203,6 +204,7 @@ impl Default for RawControl {
         Self {
             snapshot_timeout_ms: d.snapshot_timeout.as_secs_f64() * 1e3,
             startup_timeout_ms: d.startup_timeout.as_secs_f64() * 1e3,
+            can_silence_ms: d.can_silence.as_secs_f64() * 1e3,
         }
     }
 }
@@ -641,6 +643,8 @@ impl RawControl {
                 100.0,
                 60_000.0,
             )?,
+            // Under WatchdogSec=2s, so a daemon that cannot send is restarted.
+            can_silence: within("control.can_silence_ms", self.can_silence_ms, 50.0, 1500.0)?,
         })
     }
 }

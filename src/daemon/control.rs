@@ -135,6 +135,8 @@ pub struct ControlThread<B: CanBus> {
     /// The vehicle's speed the decision assumes, m/s.
     pub speed: f64,
     pub can: CanConfig,
+    /// No frame sent for this long: the watchdog is withheld.
+    pub can_silence: Duration,
     pub stats_interval: Duration,
     /// External shutdown request (signal, test, `--duration`).
     pub shutdown: Shutdown,
@@ -152,6 +154,8 @@ struct Loop {
     faults: FaultBits,
     /// The sensor faults behind CAMERA_ERROR, as the status frame reports them.
     sensor: SensorFaults,
+    /// When a frame last went out (any message).
+    last_sent_at: Option<Duration>,
     state: State,
     command: Command,
     can_failing: bool,
@@ -176,6 +180,7 @@ impl<B: CanBus> ControlThread<B> {
             worst_since_command: None,
             faults: FaultBits::empty(),
             sensor: SensorFaults::empty(),
+            last_sent_at: None,
             state: State::Init,
             command: self.decider.command(),
             can_failing: false,
@@ -218,9 +223,17 @@ impl<B: CanBus> ControlThread<B> {
                     | FaultBits::RIGHT_CAMERA_STALE
                     | FaultBits::SNAPSHOT_STALE,
             );
+            // A daemon whose frames do not go out is not alive for the vehicle: systemd
+            // restarts it when the pings stop.
+            let sending = s
+                .last_sent_at
+                .is_some_and(|t| now.saturating_sub(t) <= self.can_silence);
             let generation = s.latest.map_or(0, |l| l.generation);
-            self.notifier
-                .watchdog(now, generation, fresh && s.report.reached_running);
+            self.notifier.watchdog(
+                now,
+                generation,
+                fresh && sending && s.report.reached_running,
+            );
             self.notifier.extend_startup(now);
 
             let next = command_slot
@@ -408,6 +421,7 @@ impl<B: CanBus> ControlThread<B> {
     fn sent(&mut self, s: &mut Loop, result: Result<(), BusError>, message: &'static str) {
         match result {
             Ok(()) => {
+                s.last_sent_at = Some(self.clock.now());
                 if s.can_failing {
                     tracing::info!(errors = s.can_episode_errors, "CAN writes recovered");
                     s.can_failing = false;

@@ -7,7 +7,7 @@ use std::path::Path;
 use super::DaemonError;
 use super::clock::SharedClock;
 use super::mock_camera::mock_cameras;
-use crate::bus::{CandumpLogBus, RetryPolicy, SocketCanBus};
+use crate::bus::{CandumpLogBus, ReopeningBus, RetryPolicy, SocketCanBus};
 use crate::capture::{V4l2Config, V4l2Source};
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
 use crate::daemon::clock::SystemClock;
@@ -19,12 +19,18 @@ use flyd_core::can::bus::CanBus;
 /// as it is written, so a pipe or `tail -f` sees frames live).
 pub fn open_bus(target: &CanTarget) -> Result<Box<dyn CanBus>, DaemonError> {
     match target {
-        CanTarget::Interface(iface) => SocketCanBus::open(iface, RetryPolicy::default())
-            .map(|bus| Box::new(bus) as Box<dyn CanBus>)
-            .map_err(|error| DaemonError::Bus {
-                target: iface.clone(),
-                error,
-            }),
+        // Reopened when it vanishes, waited for when it does not exist yet (the unit need not
+        // start after the interface: systemd/README.md).
+        CanTarget::Interface(iface) => {
+            let name = iface.clone();
+            let open = move || SocketCanBus::open(&name, RetryPolicy::default());
+            ReopeningBus::new(iface, open, super::MonotonicClock)
+                .map(|bus| Box::new(bus) as Box<dyn CanBus>)
+                .map_err(|error| DaemonError::Bus {
+                    target: iface.clone(),
+                    error,
+                })
+        }
         CanTarget::Log { path, iface } if path == Path::new("-") => Ok(Box::new(
             CandumpLogBus::new(io::stdout(), iface.clone(), SystemClock),
         )),

@@ -300,6 +300,7 @@ pub fn run(
             evolution: evolution_counters.clone(),
         },
         clock: clock.clone(),
+        can_silence: config.control.can_silence,
         speed: config.vehicle.assumed_speed,
         can: config.can.messages,
         stats_interval: config.logging.stats_interval,

@@ -16,13 +16,16 @@
 //! Faults, on one camera (the other keeps its normal frames):
 //! - `--stop-camera CAM --at-frame N [--resume-at M]`: nothing written to CAM for frames N..M.
 //! - `--garbage CAM [--at-frame N] [--resume-at M]`: random bytes of the right length instead.
+//! - `--black CAM [--at-frame N] [--resume-at M]`: black frames (YUYV Y=16, U=V=128).
+//! - `--freeze CAM [--at-frame N] [--resume-at M]`: frame N again and again (a frozen sensor
+//!   whose driver keeps delivering, with fresh timestamps).
 //! - `--format CAM [--as WxH:FOURCC]`: CAM's output format is set to another one from the start
 //!   (default: half the size, YUYV) and frames of that size are written.
 //!
 //! `--timeline FILE` records, per frame index, the CLOCK_REALTIME time it was written (the
 //! clock of candump's timestamps) and what each camera got, so the host can count frames
 //! between a scenario event and a CAN frame: `INDEX SECONDS LEFT RIGHT`, with LEFT and RIGHT
-//! one of `frame`, `skip`, `garbage`, `format`.
+//! one of `frame`, `skip`, `garbage`, `black`, `frozen`, `format`.
 
 #[path = "../output.rs"]
 mod output;
@@ -80,11 +83,17 @@ struct Args {
     #[arg(long)]
     timeline: Option<String>,
     /// Stop writing to this camera from --at-frame until --resume-at.
-    #[arg(long, conflicts_with_all = ["garbage", "format"])]
+    #[arg(long, conflicts_with_all = ["garbage", "format", "black", "freeze"])]
     stop_camera: Option<Camera>,
     /// Write random bytes (of the right length) to this camera from --at-frame until --resume-at.
-    #[arg(long, conflicts_with = "format")]
+    #[arg(long, conflicts_with_all = ["format", "black", "freeze"])]
     garbage: Option<Camera>,
+    /// Write black frames to this camera from --at-frame until --resume-at.
+    #[arg(long, conflicts_with_all = ["format", "freeze"])]
+    black: Option<Camera>,
+    /// Write the --at-frame frame again to this camera until --resume-at.
+    #[arg(long, conflicts_with = "format")]
+    freeze: Option<Camera>,
     /// Give this camera another format from the start (see --as) and frames of that size.
     #[arg(long)]
     format: Option<Camera>,
@@ -92,7 +101,7 @@ struct Args {
     /// YUYV.
     #[arg(long = "as", requires = "format")]
     format_as: Option<String>,
-    /// Lead-in: write the scenario's first frame over and over (paced, not in the timeline)
+    /// Lead-in: write the scenario's first frames over and over (paced, not in the timeline)
     /// until FILE exists, then play the scenario from its start. Lets flyd start and warm up
     /// on the empty first scene however slow the machine is.
     #[arg(long, value_name = "FILE")]
@@ -111,6 +120,8 @@ enum Feed {
     Frame,
     Skip,
     Garbage,
+    Black,
+    Frozen,
     Format,
 }
 
@@ -120,6 +131,8 @@ impl Feed {
             Feed::Frame => "frame",
             Feed::Skip => "skip",
             Feed::Garbage => "garbage",
+            Feed::Black => "black",
+            Feed::Frozen => "frozen",
             Feed::Format => "format",
         }
     }
@@ -203,6 +216,9 @@ struct Frames {
     prerendered: Vec<[Vec<u8>; 2]>,
     current: [Vec<u8>; 2],
 }
+
+/// Frames the lead-in cycles through (each with its own noise).
+const LEAD_IN_FRAMES: u32 = 8;
 
 /// Past the end of a pre-rendered scenario, its last frames play again (the last scene is still).
 const LOOP_FRAMES: u32 = 30;
@@ -296,11 +312,20 @@ fn main() -> Result<()> {
     let fps = args.fps.unwrap_or(scenario.fps());
     ensure!(fps > 0.0 && fps.is_finite(), "--fps must be positive");
     let frames = args.frames.unwrap_or(scenario.frame_count());
-    let fault = args.stop_camera.or(args.garbage).or(args.format);
+    let fault = args
+        .stop_camera
+        .or(args.garbage)
+        .or(args.black)
+        .or(args.freeze)
+        .or(args.format);
     let fault_feed = if args.stop_camera.is_some() {
         Feed::Skip
     } else if args.garbage.is_some() {
         Feed::Garbage
+    } else if args.black.is_some() {
+        Feed::Black
+    } else if args.freeze.is_some() {
+        Feed::Frozen
     } else {
         Feed::Format
     };
@@ -356,8 +381,17 @@ fn main() -> Result<()> {
     if let Some(file) = &args.wait_for {
         let start = Instant::now();
         let mut n: u32 = 0;
+        // The scenario's first frames in turn, not frame 0 alone: each has its own sensor
+        // noise, as a live camera filming a still scene (one image again and again is a
+        // frozen camera to flyd). They show the first scene: none is past the first obstacle.
+        let lead_in = scenario
+            .first_obstacle_frame()
+            .filter(|&f| f > 0)
+            .unwrap_or(u32::MAX)
+            .min(scenario.frame_count())
+            .clamp(1, LEAD_IN_FRAMES);
         while !std::path::Path::new(file).exists() {
-            let pair = source.get(0)?;
+            let pair = source.get(n % lead_in)?;
             for c in 0..2 {
                 if sinks[c].frame_len == pair[c].len() {
                     sinks[c].write(&pair[c])?;
@@ -367,7 +401,9 @@ fn main() -> Result<()> {
                 }
             }
             if n == 0 {
-                eprintln!("flyd-feeder: lead-in: first frame written; frame 0 until {file} exists");
+                eprintln!(
+                    "flyd-feeder: lead-in: first frame written; frames 0..{lead_in} until {file} exists"
+                );
             }
             n += 1;
             if let Some(wait) = period.mul_f64(f64::from(n)).checked_sub(start.elapsed()) {
@@ -395,6 +431,19 @@ fn main() -> Result<()> {
             match feeds[c] {
                 Feed::Frame => sinks[c].write(&pair[c])?,
                 Feed::Skip => {}
+                Feed::Black => {
+                    for px in scratch[c].chunks_exact_mut(2) {
+                        px.copy_from_slice(&[16, 128]);
+                    }
+                    sinks[c].write(&scratch[c])?;
+                }
+                Feed::Frozen => {
+                    // The first frozen frame is the real one; then it is written again.
+                    if last_feed[c] != Feed::Frozen {
+                        scratch[c].copy_from_slice(&pair[c]);
+                    }
+                    sinks[c].write(&scratch[c])?;
+                }
                 Feed::Garbage | Feed::Format => {
                     garbage(&mut scratch[c], index, c);
                     sinks[c].write(&scratch[c])?;
