@@ -345,6 +345,12 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("--duration {s}: must be a positive number of seconds"))
         })
         .transpose()?;
+    // One flyd per CAN interface: two would interleave contradicting commands with their own
+    // alive counters. Held until exit (the kernel releases it with the process).
+    let _bus_lock = match &config.can.target {
+        CanTarget::Interface(iface) => Some(daemon::lock_interface(iface)?),
+        CanTarget::Log { .. } => None,
+    };
     // The candump log on stdout and JSON logs must not interleave: logs go to stderr then.
     let log_target = match &config.can.target {
         CanTarget::Log { path, .. } if path == Path::new("-") => LogTarget::Stderr,

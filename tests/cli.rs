@@ -510,3 +510,34 @@ fn a_truncated_jpeg_in_replay_is_an_error_naming_the_file() {
         "{stderr}"
     );
 }
+
+/// Two flyds on one CAN interface would interleave contradicting commands: the second one is
+/// refused, naming the interface (the lock is an abstract socket, as the first flyd holds it).
+#[test]
+fn a_second_flyd_on_the_same_interface_is_refused() {
+    use std::os::linux::net::SocketAddrExt;
+    let addr =
+        std::os::unix::net::SocketAddr::from_abstract_name(b"flyd-can-flydtest0").expect("name");
+    let _held = std::os::unix::net::UnixDatagram::bind_addr(&addr).expect("the lock is free");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let config = dir.path().join("c.toml");
+    let text = text.replace(
+        "log = \"-\"\nlog_interface = \"vcan0\"",
+        "interface = \"flydtest0\"",
+    );
+    assert!(text.contains("interface = \"flydtest0\""));
+    std::fs::write(&config, text).expect("write");
+    let (ok, _, stderr) = flyd(&[
+        "run",
+        "--config",
+        &config.display().to_string(),
+        "--duration",
+        "1",
+    ]);
+    assert!(!ok);
+    assert!(
+        stderr.contains("flydtest0") && stderr.contains("another flyd"),
+        "{stderr}"
+    );
+}

@@ -148,6 +148,8 @@ fn unit_keeps_the_daemon_contract() {
         "CapabilityBoundingSet=",
         "AmbientCapabilities=",
         "NoNewPrivileges=yes",
+        "MemoryMax=512M",
+        "MemorySwapMax=0",
     ] {
         assert!(directives.contains(&needed), "{UNIT} lacks `{needed}`");
     }

@@ -86,3 +86,29 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
         }
     }
 }
+
+/// The lock that keeps a second flyd off `iface`: an abstract Unix socket named
+/// `flyd-can-IFACE` (no file to leave behind; released by the kernel when the process ends,
+/// however it ends; per network namespace, as the interfaces themselves).
+pub struct InterfaceLock(#[allow(dead_code)] std::os::unix::net::UnixDatagram);
+
+/// Takes the lock of `iface`, or says which flyd holds it.
+pub fn lock_interface(iface: &str) -> Result<InterfaceLock, DaemonError> {
+    use std::os::linux::net::SocketAddrExt;
+    let name = format!("flyd-can-{iface}");
+    let addr =
+        std::os::unix::net::SocketAddr::from_abstract_name(name.as_bytes()).map_err(|error| {
+            DaemonError::Lock {
+                iface: iface.into(),
+                name: name.clone(),
+                error,
+            }
+        })?;
+    std::os::unix::net::UnixDatagram::bind_addr(&addr)
+        .map(InterfaceLock)
+        .map_err(|error| DaemonError::Lock {
+            iface: iface.into(),
+            name,
+            error,
+        })
+}

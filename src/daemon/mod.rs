@@ -53,7 +53,7 @@ use thiserror::Error;
 pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
 pub use clock::{MonotonicClock, SharedClock};
 pub use control::ControlReport;
-pub use hardware::Cameras;
+pub use hardware::{Cameras, InterfaceLock, lock_interface};
 pub use snapshot::Snapshot;
 pub use threads::{Shutdown, spawn_named};
 
@@ -78,6 +78,16 @@ use ring::frame_ring;
 pub enum DaemonError {
     #[error(transparent)]
     Config(#[from] ConfigError),
+    #[error(
+        "CAN interface {iface} is taken: another flyd drives it (lock @{name}); stop it first \
+         (systemctl stop flyd)"
+    )]
+    Lock {
+        iface: String,
+        name: String,
+        #[source]
+        error: std::io::Error,
+    },
     #[error("engine")]
     Engine(#[from] EngineError),
     #[error("perception")]
