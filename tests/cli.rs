@@ -394,6 +394,24 @@ fn values_that_disable_safety_are_refused() {
         ("fps = 30", "fps = 3.9", "cameras.fps", "5..=120"),
         ("fps = 30", "fps = 1e-300", "cameras.fps", "5..=120"),
         (
+            "[can]",
+            "[perception.obstacle]\nmin_width = 1e6\n\n[can]",
+            "perception.obstacle.min_width",
+            "0..=0.5",
+        ),
+        (
+            "[can]",
+            "[perception.obstacle]\nmax_ambiguity = 1e-9\n\n[can]",
+            "perception.obstacle.max_ambiguity",
+            "0.1..=1",
+        ),
+        (
+            "[can]",
+            "[perception.track]\ntrigger_frames = 100\n\n[can]",
+            "perception.track.trigger_frames",
+            "1..=5",
+        ),
+        (
             "[engine]",
             "[engine]\nmax_depth = 20.0",
             "engine.max_depth",

@@ -52,6 +52,11 @@ const KEYS: &[(&str, &str, f64)] = &[
     ("sensor", "raise_frames", 2.0),
     ("sensor", "clear_frames", 3.0),
     ("logging", "stats_interval_s", 10.0),
+    ("perception.obstacle", "min_width", 0.1),
+    ("perception.obstacle", "max_ambiguity", 0.5),
+    ("perception.obstacle", "corridor_half_width", 1.2),
+    ("perception.track", "trigger_frames", 2.0),
+    ("perception.road", "max_slope", 0.08),
 ];
 
 /// Integer keys (a fractional value there is a type error, which is fine too).
@@ -68,6 +73,7 @@ const INTEGERS: &[&str] = &[
     "frozen_frames",
     "raise_frames",
     "clear_frames",
+    "trigger_frames",
 ];
 
 fn xorshift(mut x: u64) -> impl FnMut() -> u64 {

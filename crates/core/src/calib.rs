@@ -365,6 +365,8 @@ const MIN_FORWARD_COS: f64 = std::f64::consts::FRAC_1_SQRT_2;
 struct RigFields<'a> {
     baseline: &'a str,
     overlap: &'a str,
+    /// What places the left and the right camera on the vehicle.
+    position: [&'a str; 2],
 }
 
 /// Consistency checks on a rig whose cameras are individually valid: a baseline in (0, 5) m and
@@ -387,7 +389,10 @@ fn check_rig(
             ),
         ));
     }
-    for (side, cam) in [("left", &rig.left), ("right", &rig.right)] {
+    for ((side, cam), field) in [("left", &rig.left), ("right", &rig.right)]
+        .into_iter()
+        .zip(fields.position)
+    {
         let c = cam.centre();
         let near = c.x.abs() <= MAX_MOUNT_LATERAL_M
             && (-1.0..=MAX_MOUNT_HEIGHT_M).contains(&c.y)
@@ -395,7 +400,7 @@ fn check_rig(
         if !near {
             return Err(field_error(
                 file,
-                fields.overlap,
+                field,
                 format!(
                     "the {side} camera is at x = {:.2}, y = {:.2}, z = {:.2} m: a camera on the \
                      vehicle is within {MAX_MOUNT_LATERAL_M} m of its axis, -1..={MAX_MOUNT_HEIGHT_M} \

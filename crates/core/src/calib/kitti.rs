@@ -221,6 +221,7 @@ pub fn parse_kitti(
         RigFields {
             baseline: "cameras",
             overlap: "cameras",
+            position: ["cameras", "cameras"],
         },
     )?;
     Ok(Calibration {

@@ -233,6 +233,7 @@ pub fn parse_middlebury(text: &str, origin: &Path) -> Result<Calibration, CalibE
         RigFields {
             baseline: "baseline",
             overlap: "baseline",
+            position: ["baseline", "baseline"],
         },
     )?;
     Ok(Calibration {

@@ -191,6 +191,7 @@ pub(super) fn build_rig(
         RigFields {
             baseline: "T",
             overlap: "R, T",
+            position: ["T", "T"],
         },
     )?;
     Ok(rig)

@@ -241,6 +241,7 @@ fn explicit_rig(
         RigFields {
             baseline: "right.position",
             overlap: "right",
+            position: ["left.position", "right.position"],
         },
     )?;
     Ok(rig)
@@ -451,6 +452,7 @@ fn import_any(
         RigFields {
             baseline: "import.file",
             overlap: "mount",
+            position: ["mount", "mount"],
         },
     )?;
     Ok(rig)

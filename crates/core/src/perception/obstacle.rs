@@ -212,7 +212,52 @@ impl ObstacleConfig {
             "obstacle.line_step_px",
             self.line_step_px.is_finite() && (0.25..=8.0).contains(&self.line_step_px),
             || format!("must be within [0.25, 8], got {}", self.line_step_px),
-        )
+        )?;
+        self.within_what_sees_a_pedestrian()
+    }
+
+    /// Bounds that keep a pedestrian an obstacle: a corridor wider than a person, a height
+    /// band a person crosses, uniqueness and cluster sizes a person's flies can meet. Outside
+    /// them no obstacle is ever reported (a `min_width` of 1e6 m, a `max_ambiguity` of 1e-9).
+    fn within_what_sees_a_pedestrian(&self) -> Result<(), PerceptionParamError> {
+        let within = |key, v: f64, lo: f64, hi: f64| {
+            PerceptionParamError::check(key, v.is_finite() && (lo..=hi).contains(&v), || {
+                format!("must be within {lo}..={hi}, got {v}")
+            })
+        };
+        within(
+            "obstacle.corridor_half_width",
+            self.corridor_half_width,
+            0.5,
+            3.0,
+        )?;
+        within("obstacle.min_height", self.min_height, 0.0, 1.0)?;
+        within("obstacle.max_height", self.max_height, 1.0, 5.0)?;
+        within("obstacle.max_distance", self.max_distance, 5.0, 200.0)?;
+        within("obstacle.max_ambiguity", self.max_ambiguity, 0.1, 1.0)?;
+        within(
+            "obstacle.max_line_ambiguity",
+            self.max_line_ambiguity,
+            0.3,
+            1.0,
+        )?;
+        within(
+            "obstacle.cluster_disparity_px",
+            self.cluster_disparity_px,
+            0.5,
+            16.0,
+        )?;
+        within(
+            "obstacle.min_cluster_depth",
+            self.min_cluster_depth,
+            0.0,
+            2.0,
+        )?;
+        within("obstacle.min_width", self.min_width, 0.0, 0.5)?;
+        within("obstacle.cluster_width", self.cluster_width, 0.3, 5.0)?;
+        PerceptionParamError::check("obstacle.min_flies", self.min_flies <= 32, || {
+            format!("must be within 1..=32, got {}", self.min_flies)
+        })
     }
 }
 

@@ -91,6 +91,15 @@ impl RoadConfig {
         positive("road.inlier_tolerance", self.inlier_tolerance)?;
         positive("road.max_height_change", self.max_height_change)?;
         positive("road.max_slope", self.max_slope)?;
+        // A road allowed to move further takes a low obstacle for the road itself.
+        PerceptionParamError::check(
+            "road.max_height_change",
+            self.max_height_change <= 1.0,
+            || format!("must be within (0, 1] m, got {}", self.max_height_change),
+        )?;
+        PerceptionParamError::check("road.max_slope", self.max_slope <= 0.2, || {
+            format!("must be within (0, 0.2], got {}", self.max_slope)
+        })?;
         PerceptionParamError::check(
             "road.max_distance",
             self.max_distance.is_finite() && self.max_distance > self.min_distance,

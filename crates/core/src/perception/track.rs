@@ -33,15 +33,17 @@ impl Default for TrackConfig {
 
 impl TrackConfig {
     pub fn validate(&self) -> Result<(), PerceptionParamError> {
-        for (key, v) in [
-            ("track.trigger_frames", self.trigger_frames),
-            ("track.release_frames", self.release_frames),
-        ] {
-            PerceptionParamError::check(key, (1..=100).contains(&v), || {
-                format!("must be within 1..=100, got {v}")
-            })?;
-        }
-        Ok(())
+        // More than a few frames to confirm is a pedestrian reached before it is believed.
+        PerceptionParamError::check(
+            "track.trigger_frames",
+            (1..=5).contains(&self.trigger_frames),
+            || format!("must be within 1..=5, got {}", self.trigger_frames),
+        )?;
+        PerceptionParamError::check(
+            "track.release_frames",
+            (1..=100).contains(&self.release_frames),
+            || format!("must be within 1..=100, got {}", self.release_frames),
+        )
     }
 }
 
