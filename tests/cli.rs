@@ -559,3 +559,25 @@ fn a_second_flyd_on_the_same_interface_is_refused() {
         "{stderr}"
     );
 }
+
+/// V4L2 cameras at an odd YUYV width or a fractional frame rate passed check-config and were
+/// refused (or rounded silently) by run: check-config refuses them, naming the key.
+#[test]
+fn v4l2_settings_run_would_refuse_are_refused_by_check_config() {
+    let text = std::fs::read_to_string(repo("config/flyd.toml")).expect("flyd.toml");
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::copy(repo("config/rig.toml"), dir.path().join("rig.toml")).expect("rig");
+    for (from, to, key, words) in [
+        ("width = 640", "width = 641", "cameras.width", "even width"),
+        ("fps = 30", "fps = 30.4", "cameras.fps", "whole number"),
+    ] {
+        let file = dir.path().join("c.toml");
+        std::fs::write(&file, text.replacen(from, to, 1)).expect("write");
+        let (ok, _, stderr) = flyd(&["check-config", &file.display().to_string()]);
+        assert!(!ok, "{to}");
+        assert!(
+            stderr.contains(key) && stderr.contains(words),
+            "{to}: {stderr}"
+        );
+    }
+}

@@ -69,6 +69,11 @@ fn real_roads_without_an_obstacle_are_clear_at_30_kmh() {
             s["command"], s["reason"], s["road"]["source"], s["road"]["plane"]
         );
         assert_eq!(s["command"], "CLEAR", "{pair}: {s}");
+        // The sensor checks' thresholds were measured so that no real frame trips them.
+        assert_eq!(
+            s["sensor_fault_frames"], 0,
+            "{pair}: a sensor fault on a real road"
+        );
         assert_eq!(
             s["alarms"]["slow_generations"], 0,
             "{pair}: {}",
@@ -272,6 +277,11 @@ fn a_car_crossing_into_the_corridor_is_seen_at_its_distance() {
     let s = util::flyd_json(args);
     let frames = s["per_frame"].as_array().expect("per_frame");
     assert_eq!(frames.len(), 12);
+    // A real sequence: no frame uniform, frozen or mismatched.
+    assert_eq!(
+        s["sensor_fault_frames"], 0,
+        "a sensor fault on the KITTI sequence"
+    );
     for f in frames {
         println!(
             "frame {}: {} ({}), obstacle {}",

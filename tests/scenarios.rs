@@ -84,6 +84,10 @@ fn a_pedestrian_stepping_in_is_a_stop_within_a_few_generations() {
 fn assert_no_alarm(scenario: &str, size: (u32, u32), flies: u32, seed: u64) {
     let (summary, w) = replay(scenario, size, flies, seed);
     let alarms = &summary["alarms"];
+    assert_eq!(
+        summary["sensor_fault_frames"], 0,
+        "{scenario} seed {seed}: a sensor fault on hw-mock's healthy cameras"
+    );
     println!(
         "{scenario} {}x{} {flies} flies seed {seed}: {alarms}, global warning up to {:.3}",
         size.0,
