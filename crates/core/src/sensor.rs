@@ -19,8 +19,6 @@
 //! health into [`SensorFaults`]. The thresholds' defaults were measured on hw-mock's scenarios and
 //! on the real KITTI frames of the test fixtures (none faulty: see `docs/tuning.md`).
 
-use std::fmt;
-
 use serde::{Deserialize, Serialize};
 
 use crate::frame::{BPP, PreparedImage};
@@ -117,85 +115,19 @@ impl ImageCheck {
     }
 }
 
-/// The sensor faults, one bit each (the `SensorFaults` signal of `FLYD_Status`; any of them
-/// also sets `CAMERA_ERROR`).
-#[derive(Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub struct SensorFaults(u8);
-
-impl SensorFaults {
-    /// bit 0: a camera's image is uniform or has too little texture (dark, saturated, covered,
-    /// defocused).
-    pub const UNIFORM: Self = Self(1 << 0);
-    /// bit 1: a camera repeats the same image (frozen sensor, stuck driver buffer).
-    pub const FROZEN: Self = Self(1 << 1);
-    /// bit 2: the two cameras' exposures differ far beyond a working pair's.
-    pub const MISMATCH: Self = Self(1 << 2);
-    /// bit 3: the stereo pair matches nowhere (noise, covered, calibration no longer fits).
-    pub const BLIND: Self = Self(1 << 3);
-
-    const NAMED: [(Self, &'static str); 4] = [
-        (Self::UNIFORM, "UNIFORM"),
-        (Self::FROZEN, "FROZEN"),
-        (Self::MISMATCH, "MISMATCH"),
-        (Self::BLIND, "BLIND"),
-    ];
-
-    pub const fn empty() -> Self {
-        Self(0)
-    }
-    pub const fn bits(self) -> u8 {
-        self.0
-    }
-    pub const fn from_bits(bits: u8) -> Self {
-        Self(bits & 0x0F)
-    }
-    pub const fn is_empty(self) -> bool {
-        self.0 == 0
-    }
-    pub const fn contains(self, other: Self) -> bool {
-        self.0 & other.0 == other.0
-    }
-    pub fn set(&mut self, other: Self, on: bool) {
-        if on {
-            self.0 |= other.0;
-        } else {
-            self.0 &= !other.0;
-        }
-    }
-    /// Names of the set bits, bit 0 first.
-    pub fn names(self) -> impl Iterator<Item = &'static str> {
-        Self::NAMED
-            .into_iter()
-            .filter(move |(flag, _)| self.contains(*flag))
-            .map(|(_, name)| name)
-    }
-}
-
-impl std::ops::BitOr for SensorFaults {
-    type Output = Self;
-    fn bitor(self, rhs: Self) -> Self {
-        Self(self.0 | rhs.0)
-    }
-}
-
-impl fmt::Display for SensorFaults {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.is_empty() {
-            return f.write_str("none");
-        }
-        for (i, name) in self.names().enumerate() {
-            if i > 0 {
-                f.write_str("|")?;
-            }
-            f.write_str(name)?;
-        }
-        Ok(())
-    }
-}
-
-impl fmt::Debug for SensorFaults {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "SensorFaults({self})")
+bit_set! {
+    /// The sensor faults, one bit each (the `SensorFaults` signal of `FLYD_Status`; any of
+    /// them also sets `CAMERA_ERROR`).
+    pub struct SensorFaults(mask 0x0F) {
+        /// bit 0: a camera's image is uniform or has too little texture (dark, saturated,
+        /// covered, defocused).
+        const UNIFORM = 0 => "UNIFORM";
+        /// bit 1: a camera repeats the same image (frozen sensor, stuck driver buffer).
+        const FROZEN = 1 => "FROZEN";
+        /// bit 2: the two cameras' exposures differ far beyond a working pair's.
+        const MISMATCH = 2 => "MISMATCH";
+        /// bit 3: the stereo pair matches nowhere (noise, covered, calibration no longer fits).
+        const BLIND = 3 => "BLIND";
     }
 }
 
