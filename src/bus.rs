@@ -5,6 +5,10 @@
 //!   `canplayer`; for running without CAN hardware.
 //! - [`MemoryBus`]: records frames in memory for tests, and can be told to fail.
 //!
+//! And where the vehicle's frames come from ([`CanReceiver`]): [`SocketCanRx`] (a filtered
+//! socket of its own), [`CandumpReplayRx`] (a recorded drive's candump log, replayed on the
+//! clock), [`MemoryRx`] (tests). [`ReopeningBus`] reopens either kind when the device goes.
+//!
 //! Errors are classified into [`BusError`]'s retryable and fatal classes by errno
 //! ([`classify`]); the classes are documented with the trait, in `flyd_core::can::bus`.
 
@@ -13,8 +17,10 @@ use std::io::{self, Write};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use flyd_core::can::bus::{BusError, CanBus, check_frame};
-use flyd_core::can::candump::{CAN_EFF_FLAG, CAN_EFF_MAX, format_candump_line};
+use flyd_core::can::bus::{BusError, CanBus, CanReceiver, ReceivedFrame, check_frame};
+use flyd_core::can::candump::{
+    CAN_EFF_FLAG, CAN_EFF_MAX, CAN_SFF_MAX as CAN_SFF_MASK, format_candump_line, parse_candump_line,
+};
 use flyd_core::clock::Clock;
 
 /// Classifies an I/O error by its errno (falling back to its kind when there is none).
@@ -394,7 +400,7 @@ pub struct ReopeningBus<B, F> {
 const REOPEN_BACKOFF_MIN: Duration = Duration::from_millis(50);
 const REOPEN_BACKOFF_MAX: Duration = Duration::from_secs(2);
 
-impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
+impl<B, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
     /// Opens the bus with `open` now; a missing device is not an error (it is waited for),
     /// any other failure is (a kernel without CAN, a permission denied).
     pub fn new(name: &str, mut open: F, clock: impl Clock + 'static) -> Result<Self, BusError> {
@@ -456,9 +462,9 @@ impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
     }
 }
 
-impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> CanBus for ReopeningBus<B, F> {
-    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
-        let result = self.try_open()?.send(id, data);
+impl<B, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
+    /// After `result` of an operation on the open handle: a vanished device drops it.
+    fn after<T>(&mut self, result: Result<T, BusError>) -> Result<T, BusError> {
         if let Err(e @ BusError::NoDevice { .. }) = &result {
             tracing::warn!(
                 interface = %self.name, error = %e,
@@ -470,6 +476,185 @@ impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> CanBus for ReopeningBu
             self.backoff = REOPEN_BACKOFF_MIN;
         }
         result
+    }
+}
+
+impl<B: CanBus, F: FnMut() -> Result<B, BusError> + Send> CanBus for ReopeningBus<B, F> {
+    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
+        let result = self.try_open()?.send(id, data);
+        self.after(result)
+    }
+}
+
+impl<B: CanReceiver, F: FnMut() -> Result<B, BusError> + Send> CanReceiver for ReopeningBus<B, F> {
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError> {
+        let result = self.try_open()?.try_recv();
+        self.after(result)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Receivers
+
+/// A SocketCAN raw socket that receives only the given standard IDs, non-blocking.
+///
+/// A socket of its own (not the sender's): the kernel filters for it, so the sender's error
+/// frame handling never sees the vehicle's frames and a flood of them never delays a send.
+pub struct SocketCanRx {
+    socket: socketcan::CanSocket,
+}
+
+impl SocketCanRx {
+    /// Opens `iface` receiving data frames of the standard `ids` only (no extended, no remote
+    /// frames).
+    pub fn open(iface: &str, ids: &[u32]) -> Result<Self, BusError> {
+        use socketcan::{CanFilter, Socket, SocketOptions};
+        let io = |e: io::Error| classify(&e);
+        let socket = socketcan::CanSocket::open(iface).map_err(io)?;
+        socket.set_nonblocking(true).map_err(io)?;
+        let mask = CAN_SFF_MASK | CAN_EFF_FLAG | libc::CAN_RTR_FLAG;
+        let filters: Vec<CanFilter> = ids.iter().map(|&id| CanFilter::new(id, mask)).collect();
+        socket.set_filters(&filters).map_err(io)?;
+        socket.set_error_filter_drop_all().map_err(io)?;
+        Ok(Self { socket })
+    }
+}
+
+impl CanReceiver for SocketCanRx {
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError> {
+        use socketcan::{CanFrame, EmbeddedFrame, Frame, Socket};
+        loop {
+            match self.socket.read_frame() {
+                Ok(CanFrame::Data(frame)) => {
+                    let mut id = frame.raw_id();
+                    if frame.is_extended() {
+                        id |= CAN_EFF_FLAG;
+                    }
+                    return Ok(ReceivedFrame::new(id, frame.data()));
+                }
+                // Filtered out by the kernel already; skipped should one slip through.
+                Ok(_) => continue,
+                Err(e) => {
+                    return match classify(&e) {
+                        BusError::WouldBlock => Ok(None),
+                        other => Err(other),
+                    };
+                }
+            }
+        }
+    }
+}
+
+/// Frames of a candump log (`candump -l` / `-L` lines, as `canplayer` reads them), released
+/// on the clock at their times relative to the first frame: a recorded drive's bus replayed
+/// into flyd without a kernel. Frames of every ID are returned; the caller picks.
+pub struct CandumpReplayRx<C: Clock> {
+    frames: VecDeque<(Duration, ReceivedFrame)>,
+    clock: C,
+    start: Duration,
+}
+
+/// Why a candump log could not be read as input.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayLogError {
+    #[error("reading {path}")]
+    Read {
+        path: String,
+        #[source]
+        error: io::Error,
+    },
+    #[error("{path}:{line}: not a candump line")]
+    Line {
+        path: String,
+        line: usize,
+        #[source]
+        error: flyd_core::can::candump::CandumpParseError,
+    },
+}
+
+impl<C: Clock> CandumpReplayRx<C> {
+    /// Reads the whole log now (at most the text-file limit, [`flyd_core::textfile`]); its
+    /// first frame is due at `clock.now()`.
+    pub fn open(path: &std::path::Path, clock: C) -> Result<Self, ReplayLogError> {
+        let shown = path.display().to_string();
+        let text = flyd_core::textfile::read(path).map_err(|error| ReplayLogError::Read {
+            path: shown.clone(),
+            error,
+        })?;
+        Self::parse(&text, clock).map_err(|(line, error)| ReplayLogError::Line {
+            path: shown,
+            line,
+            error,
+        })
+    }
+
+    /// The log's text; errors carry the 1-based line.
+    pub fn parse(
+        text: &str,
+        clock: C,
+    ) -> Result<Self, (usize, flyd_core::can::candump::CandumpParseError)> {
+        let mut frames = VecDeque::new();
+        let mut first = None;
+        for (i, line) in text.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let (t, _iface, id, data) = parse_candump_line(line).map_err(|e| (i + 1, e))?;
+            let t0 = *first.get_or_insert(t);
+            let at = Duration::try_from_secs_f64((t - t0).max(0.0)).unwrap_or(Duration::ZERO);
+            if let Some(frame) = ReceivedFrame::new(id, &data) {
+                frames.push_back((at, frame));
+            }
+        }
+        let start = clock.now();
+        Ok(Self {
+            frames,
+            clock,
+            start,
+        })
+    }
+
+    /// Frames not yet released.
+    pub fn remaining(&self) -> usize {
+        self.frames.len()
+    }
+}
+
+impl<C: Clock + Send> CanReceiver for CandumpReplayRx<C> {
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError> {
+        let elapsed = self.clock.now().saturating_sub(self.start);
+        match self.frames.front() {
+            Some(&(at, frame)) if at <= elapsed => {
+                self.frames.pop_front();
+                Ok(Some(frame))
+            }
+            _ => Ok(None),
+        }
+    }
+}
+
+/// Frames pushed by a test (or any producer) into a shared queue.
+#[derive(Clone, Default)]
+pub struct MemoryRx(Arc<Mutex<VecDeque<ReceivedFrame>>>);
+
+impl MemoryRx {
+    pub fn push(&self, id: u32, data: &[u8]) {
+        if let Some(frame) = ReceivedFrame::new(id, data) {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push_back(frame);
+        }
+    }
+}
+
+impl CanReceiver for MemoryRx {
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError> {
+        Ok(self
+            .0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .pop_front())
     }
 }
 
@@ -722,6 +907,7 @@ mod tests {
             faults: flyd_core::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
             sensor: flyd_core::sensor::SensorFaults::empty(),
+            motion_fault: false,
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,
             cam_fps_right: 30.0,
@@ -764,6 +950,34 @@ mod tests {
 
     /// An adapter that vanishes (ENODEV) is reopened with backoff, and one missing at start is
     /// waited for; other open failures stay errors.
+    #[test]
+    fn a_candump_log_is_received_at_its_recorded_pace() {
+        let clock = ManualClock::new(Duration::from_secs(5));
+        let log = "(1700000000.100000) vcan0 110#0102030405060708\n\n\
+                   (1700000000.120000) vcan0 121#AA\n\
+                   (1700000000.600000) vcan0 110#01\n";
+        let mut rx = CandumpReplayRx::parse(log, clock.clone()).expect("parses");
+        assert_eq!(rx.remaining(), 3);
+        let first = rx.try_recv().expect("ok").expect("due at once");
+        assert_eq!(
+            (first.id, first.payload()),
+            (0x110, &[1, 2, 3, 4, 5, 6, 7, 8][..])
+        );
+        assert_eq!(rx.try_recv(), Ok(None), "the next is due 20 ms later");
+        clock.advance(Duration::from_millis(20));
+        assert_eq!(rx.try_recv().expect("ok").map(|f| f.len), Some(1));
+        clock.advance(Duration::from_millis(480));
+        let short = rx.try_recv().expect("ok").expect("due");
+        assert_eq!(
+            short.payload(),
+            &[1],
+            "a wrong DLC is kept for the decoder to reject"
+        );
+        assert_eq!(rx.try_recv(), Ok(None));
+        let bad = CandumpReplayRx::parse("(1.0) vcan0 110#01\nnot a frame\n", clock);
+        assert_eq!(bad.err().map(|(line, _)| line), Some(2));
+    }
+
     #[test]
     fn a_vanished_interface_is_reopened_with_backoff() {
         let clock = ManualClock::new(Duration::from_secs(1));

@@ -135,6 +135,11 @@ struct RunArgs {
     /// bus: a dry run on the vehicle.
     #[arg(long, value_name = "PATH")]
     can_log: Option<PathBuf>,
+    /// Read the frames flyd receives (the vehicle's motion, VCU_Motion) from a candump log
+    /// (`candump -l`/`-L` lines), replayed at their recorded pace from the start, instead of
+    /// the bus or the mock vehicle: a recorded drive's bus, without a kernel.
+    #[arg(long, value_name = "PATH")]
+    can_input: Option<PathBuf>,
     /// Stop after SECONDS (default: until SIGTERM/SIGINT, or the end of a mock scenario).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -382,15 +387,24 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
 
     let clock = MonotonicClock::shared();
     let cameras = hardware::open_cameras(&config, &clock)?;
-    let bus = hardware::open_bus(&config.can.target)?;
+    let tx = hardware::open_bus(&config.can.target)?;
+    let rx = hardware::open_receiver(&config, args.can_input.as_deref(), &clock)?;
     tracing::info!(config = %args.config.display(), "flyd starting");
-    let report = run_daemon(cameras, bus, clock, &config, shutdown)?;
+    let report = run_daemon(
+        cameras,
+        daemon::CanPort { tx, rx },
+        clock,
+        &config,
+        shutdown,
+    )?;
     tracing::info!(
         ended_by = ?report.ended_by,
         generations = report.generations,
         commands = report.control.commands_sent,
         can_errors = report.control.can_errors,
         faults_seen = %report.control.faults_seen,
+        motion_accepted = report.control.motion_accepted,
+        motion_rejected = report.control.motion_rejected,
         "flyd stopped"
     );
     Ok(())
@@ -398,7 +412,7 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
 
 fn run_daemon(
     cameras: daemon::Cameras,
-    bus: Box<dyn flyd_core::can::bus::CanBus>,
+    bus: daemon::CanPort,
     clock: daemon::SharedClock,
     config: &DaemonConfig,
     shutdown: Shutdown,

@@ -436,10 +436,28 @@ fn values_that_disable_safety_are_refused() {
             "0.05",
         ),
         (
-            "[can]",
-            "[vehicle]\nassumed_speed_kmh = 0\n\n[can]",
+            "assumed_speed_kmh = 30",
+            "assumed_speed_kmh = 0",
             "vehicle.assumed_speed_kmh",
             "10..=250",
+        ),
+        (
+            "assumed_speed_kmh = 30",
+            "assumed_speed_kmh = 30\nmotion_stale_periods = 0",
+            "vehicle.motion_stale_periods",
+            "1..=10",
+        ),
+        (
+            "motion = \"none\"",
+            "motion = \"wheels\"",
+            "vehicle.motion",
+            "unknown variant",
+        ),
+        (
+            "[can]",
+            "[can]\nmessages.motion = { id = 0x120, data_id = 0x0110, period_ms = 20 }",
+            "can.messages",
+            "share CAN ID",
         ),
         (
             "log_interface = \"vcan0\"",

@@ -14,7 +14,9 @@ mod dbc_signals;
 use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
 use dbc_signals::{raw_value, value_table};
 use flyd_core::can::crc::e2e_crc;
-use flyd_core::can::messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
+use flyd_core::can::messages::{
+    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, StatusMsg,
+};
 use flyd_core::can::{CanConfig, MessageConfig};
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::sensor::SensorFaults;
@@ -129,6 +131,10 @@ fn status_case(msg: StatusMsg, c: u8) -> Case {
     let age = msg.perception_age.as_millis() as f64;
     let signals = vec![
         ("State", Want::Named(msg.state.name())),
+        (
+            "MotionFault",
+            Want::Named(if msg.motion_fault { "UNKNOWN" } else { "OK" }),
+        ),
         ("FaultBits", Want::Phys(f64::from(msg.faults.bits()))),
         ("PerceptionAgeMs", Want::Phys(age)),
         ("SensorFaults", Want::Phys(f64::from(msg.sensor.bits()))),
@@ -159,6 +165,16 @@ fn obstacle_case(msg: ObstacleMsg, c: u8) -> Case {
         ("ObstacleConfirmed", Want::Named(confirmed)),
         ("RoadMeasured", Want::Named(road)),
         ("Height", Want::Phys(msg.height)),
+    ];
+    case(&msg, c, signals)
+}
+
+fn motion_case(msg: MotionMsg, c: u8) -> Case {
+    let valid = if msg.valid { "VALID" } else { "INVALID" };
+    let signals = vec![
+        ("MotionValid", Want::Named(valid)),
+        ("Speed", Want::Phys(msg.speed)),
+        ("YawRate", Want::Phys(msg.yaw_rate)),
     ];
     case(&msg, c, signals)
 }
@@ -200,6 +216,7 @@ fn cases() -> Vec<Case> {
                 faults: FaultBits::LEFT_CAMERA_STALE | FaultBits::CAN_TX_ERROR,
                 perception_age: Duration::from_millis(1234),
                 sensor: SensorFaults::UNIFORM | SensorFaults::BLIND,
+                motion_fault: true,
                 generations_per_sec: 118.0,
                 cam_fps_left: 29.5,
                 cam_fps_right: 30.0,
@@ -212,6 +229,7 @@ fn cases() -> Vec<Case> {
                 faults: FaultBits::all(),
                 perception_age: Duration::from_millis(4095),
                 sensor: SensorFaults::from_bits(0x0F),
+                motion_fault: false,
                 generations_per_sec: 510.0,
                 cam_fps_left: 127.5,
                 cam_fps_right: 0.5,
@@ -224,6 +242,7 @@ fn cases() -> Vec<Case> {
                 faults: FaultBits::SNAPSHOT_STALE,
                 perception_age: Duration::from_millis(7),
                 sensor: SensorFaults::FROZEN,
+                motion_fault: true,
                 generations_per_sec: 2.0,
                 cam_fps_left: 0.0,
                 cam_fps_right: 15.0,
@@ -255,6 +274,30 @@ fn cases() -> Vec<Case> {
             13,
         ),
         obstacle_case(ObstacleMsg::NONE, 0),
+        motion_case(
+            MotionMsg {
+                valid: true,
+                speed: 13.89,
+                yaw_rate: -0.1234,
+            },
+            4,
+        ),
+        motion_case(
+            MotionMsg {
+                valid: true,
+                speed: -327.68,
+                yaw_rate: 3.2767,
+            },
+            14,
+        ),
+        motion_case(
+            MotionMsg {
+                valid: false,
+                speed: 0.0,
+                yaw_rate: 0.0,
+            },
+            0,
+        ),
         obstacle_case(
             ObstacleMsg {
                 road_measured: true,
@@ -332,7 +375,7 @@ fn encoder_writes_every_signal_where_the_dbc_says() {
 #[test]
 fn dbc_frames_are_well_formed() {
     let dbc = load();
-    assert_eq!(dbc.messages.len(), 3);
+    assert_eq!(dbc.messages.len(), 4);
     for msg in &dbc.messages {
         assert_eq!(msg.size, 8, "{}", msg.name);
         assert!(
@@ -410,6 +453,7 @@ fn ids_data_ids_and_cycle_times_match_the_rust_defaults() {
     check::<CommandMsg>(&dbc, cfg.command);
     check::<StatusMsg>(&dbc, cfg.status);
     check::<ObstacleMsg>(&dbc, cfg.obstacle);
+    check::<MotionMsg>(&dbc, cfg.motion);
 }
 
 /// The Rust enums and the DBC value tables name the same values the same way, both directions.
@@ -548,6 +592,7 @@ fn status_with(f: impl FnOnce(&mut StatusMsg)) -> [u8; 8] {
         faults: FaultBits::empty(),
         perception_age: Duration::from_millis(20),
         sensor: SensorFaults::empty(),
+        motion_fault: false,
         generations_per_sec: 100.0,
         cam_fps_left: 30.0,
         cam_fps_right: 30.0,
@@ -568,4 +613,50 @@ fn obstacle_with(f: impl FnOnce(&mut ObstacleMsg)) -> [u8; 8] {
     };
     f(&mut m);
     m.encode(AliveCounter::ZERO)
+}
+
+/// The received message, the other way round: a frame laid out from the DBC alone (start
+/// bits, sizes, factors, the Data ID attribute), as a VCU built from the DBC would send it,
+/// decodes in flyd to the same physical values and is accepted by its motion monitor.
+#[test]
+fn a_motion_frame_built_from_the_dbc_decodes() {
+    use flyd_core::motion::{MotionConfig, MotionMonitor};
+    let dbc = load();
+    let msg = message(&dbc, MotionMsg::NAME);
+    let build = |values: &[(&str, f64)], counter: u8| {
+        let mut word = 0u64;
+        for (name, phys) in values
+            .iter()
+            .copied()
+            .chain([("AliveCounter", f64::from(counter))])
+        {
+            let sig = signal(msg, name);
+            let raw = ((phys - sig.offset) / sig.factor).round() as i64;
+            let mask = (1u64 << sig.size) - 1;
+            word |= ((raw as u64) & mask) << sig.start_bit;
+        }
+        let mut data = word.to_le_bytes();
+        data[0] = e2e_crc(data_id(&dbc, msg), &data[1..]);
+        data
+    };
+    let values = [("MotionValid", 1.0), ("Speed", -3.21), ("YawRate", 0.4321)];
+    let data = build(&values, 7);
+    let (decoded, c) = MotionMsg::decode_with(&data, MotionMsg::DEFAULT_DATA_ID).expect("decodes");
+    assert_eq!(c, counter(7));
+    assert_eq!(
+        decoded,
+        MotionMsg {
+            valid: true,
+            speed: -3.21,
+            yaw_rate: 0.4321
+        }
+    );
+    let mut monitor = MotionMonitor::new(MotionConfig::default());
+    let ms = Duration::from_millis;
+    let speed = [("MotionValid", 1.0), ("Speed", 8.0), ("YawRate", 0.0)];
+    monitor.receive(&build(&speed, 0), ms(0)).expect("accepted");
+    monitor
+        .receive(&build(&speed, 1), ms(20))
+        .expect("accepted");
+    assert_eq!(monitor.decision_speed(ms(25), 20.0), 8.0);
 }

@@ -144,6 +144,25 @@ impl Scenario {
         }
     }
 
+    /// The vehicle's forward speed at `frame`, m/s: what its wheels would report (0 in the
+    /// stationary scenarios, and past the last frame, where the scene holds still).
+    pub fn speed_at(&self, frame: u32) -> f64 {
+        if frame >= self.frames {
+            return 0.0;
+        }
+        match self.kind {
+            Kind::Driving => DRIVING_SPEED,
+            Kind::DrivingToPedestrian => APPROACH_SPEED,
+            _ => 0.0,
+        }
+    }
+
+    /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): the road is straight
+    /// in every scenario.
+    pub fn yaw_rate_at(&self, _frame: u32) -> f64 {
+        0.0
+    }
+
     /// First frame whose scene has an obstacle in the vehicle's lane
     /// ([`Scene::obstacle_in_lane`]): the start of a reaction-time measurement.
     pub fn first_obstacle_frame(&self) -> Option<u32> {
@@ -164,6 +183,22 @@ mod tests {
             assert!(s.frame_count() >= 150);
         }
         assert!(Scenario::by_name("nope").is_none());
+    }
+
+    #[test]
+    fn speed_follows_the_scene() {
+        let at = |n, f| Scenario::by_name(n).map(|s| s.speed_at(f));
+        assert_eq!(at("pedestrian-4m", 10), Some(0.0));
+        assert_eq!(at("driving", 10), Some(DRIVING_SPEED));
+        assert_eq!(
+            at("driving", 150),
+            Some(0.0),
+            "the scene holds past the end"
+        );
+        // The travelled distance the scenes are rendered at is the speed's integral.
+        let s = Scenario::by_name("driving-to-pedestrian").expect("known");
+        let travelled: f64 = (0..30).map(|f| s.speed_at(f) / FPS).sum();
+        assert!((travelled - s.scene_at(30).travelled).abs() < 1e-9);
     }
 
     #[test]

@@ -25,6 +25,7 @@ use flyd_core::decision::Command;
 use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
 use flyd_core::engine::{Engine, EngineError, EngineParams};
 use flyd_core::geometry::StereoRig;
+use flyd_core::motion::MotionConfig;
 use flyd_core::perception::PerceptionConfig;
 use flyd_core::sensor::SensorConfig;
 use flyd_core::status::FaultBits;
@@ -173,18 +174,36 @@ impl Default for EvolutionConfig {
     }
 }
 
+/// Where flyd learns the vehicle's motion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum MotionInput {
+    /// `VCU_Motion` on the CAN interface flyd sends on (`can.messages.motion`); missing or
+    /// untrusted motion is `FLYD_Status.MotionFault` and the assumed speed.
+    #[serde(rename = "can")]
+    Can,
+    /// No motion message: the decision always assumes `assumed_speed`, MotionFault stays 0.
+    #[serde(rename = "none")]
+    None,
+}
+
 /// What flyd knows of the vehicle.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VehicleConfig {
-    /// The speed the decision assumes, m/s: the highest the vehicle drives at while flyd is
-    /// in charge (flyd does not measure the speed yet).
+    /// The speed the decision assumes while the measured one is not known (or not
+    /// configured), m/s: the highest the vehicle drives at while flyd is in charge.
     pub assumed_speed: f64,
+    /// Where the measured speed comes from.
+    pub motion: MotionInput,
+    /// No accepted `VCU_Motion` for this many of its periods: MotionFault.
+    pub motion_stale_periods: u32,
 }
 
 impl Default for VehicleConfig {
     fn default() -> Self {
         Self {
             assumed_speed: 30.0 / 3.6,
+            motion: MotionInput::Can,
+            motion_stale_periods: 3,
         }
     }
 }
@@ -275,6 +294,21 @@ pub struct DaemonConfig {
 }
 
 impl DaemonConfig {
+    /// The motion monitor's settings: `VCU_Motion`'s Data ID and period from
+    /// `can.messages.motion`, staleness from `vehicle.motion_stale_periods`; `None` when
+    /// `vehicle.motion = "none"`.
+    pub fn motion(&self) -> Option<MotionConfig> {
+        if self.vehicle.motion == MotionInput::None {
+            return None;
+        }
+        let m = self.can.messages.motion;
+        Some(MotionConfig {
+            data_id: m.data_id,
+            period: m.period(),
+            stale: m.period() * self.vehicle.motion_stale_periods,
+        })
+    }
+
     /// A configuration for a rig given in code: 30 fps cameras of the rig's size, default
     /// everything else, CAN to a candump log on stdout (tests replace the bus anyway).
     pub fn with_rig(rig: StereoRig) -> Self {

@@ -102,12 +102,17 @@ enum RawMode {
 #[serde(deny_unknown_fields, default)]
 struct RawVehicle {
     assumed_speed_kmh: f64,
+    motion: MotionInput,
+    motion_stale_periods: u32,
 }
 
 impl Default for RawVehicle {
     fn default() -> Self {
+        let d = VehicleConfig::default();
         Self {
-            assumed_speed_kmh: VehicleConfig::default().assumed_speed * 3.6,
+            assumed_speed_kmh: d.assumed_speed * 3.6,
+            motion: d.motion,
+            motion_stale_periods: d.motion_stale_periods,
         }
     }
 }
@@ -122,8 +127,19 @@ impl RawVehicle {
                 format!("must be within 10..=250 km/h, got {v}"),
             );
         }
+        // 1 period: one late frame is a fault; more than 10 (200 ms at 20 ms): a vehicle that
+        // brakes hard is 2 m/s slower than the speed still trusted.
+        let n = self.motion_stale_periods;
+        if !(1..=10).contains(&n) {
+            return bad(
+                "vehicle.motion_stale_periods",
+                format!("must be within 1..=10, got {n}"),
+            );
+        }
         Ok(VehicleConfig {
             assumed_speed: v / 3.6,
+            motion: self.motion,
+            motion_stale_periods: n,
         })
     }
 }

@@ -12,7 +12,9 @@
 //! - the **worst snapshot** since the previous command ([`DecisionInput::worst`]: the nearest
 //!   confirmed obstacle, the highest global warning; a spike between two commands is not lost,
 //!   releases stay conservative), or the newest snapshot's when none arrived;
-//! - the assumed speed (`vehicle.assumed_speed_kmh`: flyd does not measure it yet);
+//! - the vehicle's speed: the measured one while `VCU_Motion` is trusted
+//!   ([`flyd_core::motion::MotionMonitor`]: CRC, counter, age, plausibility), else the
+//!   configured highest (`vehicle.assumed_speed_kmh`) with `FLYD_Status.MotionFault` set;
 //! - the current fault bits: any fault makes the decider fall back to its safe command.
 //!
 //! Snapshots of a population still warming up (fewer than `warmup_generations`) carry no
@@ -27,6 +29,9 @@
 //!
 //! CAN write errors never stop the loop: they are counted, logged once per episode (and once
 //! when writes recover), raise CAN_TX_ERROR, and the next period simply sends again.
+//!
+//! Received frames (the vehicle's motion) are read in the same loop, without blocking, at most
+//! [`MAX_RX_PER_TURN`] a turn, so a flood of them never delays a send.
 //!
 //! This is the only thread that writes to the bus and talks to systemd ([`ServiceNotifier`]).
 //! At shutdown it sends a last command (reason SHUTDOWN) and a last status (state SHUTDOWN).
@@ -46,17 +51,20 @@ use super::ring::RingCounters;
 use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
-use flyd_core::can::bus::{BusError, CanBus};
+use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
 use flyd_core::can::messages::{CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::motion::{MotionFault, MotionMonitor};
 use flyd_core::perception::RoadSource;
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
 const MAX_TURN: Duration = Duration::from_millis(5);
+/// Received frames handled per turn at most (a 20 ms sender gives one per turn).
+pub const MAX_RX_PER_TURN: usize = 64;
 /// Window of the rates in the status frame.
 const RATE_WINDOW: Duration = Duration::from_secs(1);
 
@@ -104,6 +112,15 @@ pub struct Inputs {
     pub evolution: Arc<EvolutionCounters>,
 }
 
+/// The vehicle's motion as the control thread reads it.
+pub struct MotionInputs {
+    pub monitor: MotionMonitor,
+    /// `VCU_Motion`'s CAN ID.
+    pub id: u32,
+    /// Where its frames come from (`None`: nothing sends them: MotionFault throughout).
+    pub rx: Option<Box<dyn CanReceiver>>,
+}
+
 /// What the control thread did, for [`super::RunReport`].
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ControlReport {
@@ -121,7 +138,14 @@ pub struct ControlReport {
     /// time of its frames (what splits a reaction into evolution and pipeline latency).
     pub first_stop_snapshot_at: Option<Duration>,
     pub first_stop_frame_at: Option<Duration>,
+    /// The speed that STOP was decided at, m/s.
+    pub first_stop_speed: Option<f64>,
     pub last_command: Option<Command>,
+    /// `VCU_Motion` frames accepted and rejected (bad DLC, CRC, counter, implausible).
+    pub motion_accepted: u64,
+    pub motion_rejected: u64,
+    /// Whether the motion was ever unknown after it had been known.
+    pub motion_lost: bool,
     pub reached_running: bool,
 }
 
@@ -132,8 +156,11 @@ pub struct ControlThread<B: CanBus> {
     pub notifier: ServiceNotifier,
     pub inputs: Inputs,
     pub clock: SharedClock,
-    /// The vehicle's speed the decision assumes, m/s.
-    pub speed: f64,
+    /// The speed the decision assumes while the measured one is not known, m/s.
+    pub assumed_speed: f64,
+    /// The vehicle's motion: its checks, and where its frames come from (`None`: not
+    /// configured, `vehicle.motion = "none"`).
+    pub motion: Option<MotionInputs>,
     pub can: CanConfig,
     /// No frame sent for this long: the watchdog is withheld.
     pub can_silence: Duration,
@@ -154,6 +181,11 @@ struct Loop {
     faults: FaultBits,
     /// The sensor faults behind CAMERA_ERROR, as the status frame reports them.
     sensor: SensorFaults,
+    /// Why the motion is unknown (`None`: known, or not configured).
+    motion_fault: Option<MotionFault>,
+    /// Whether the motion was known once (its loss is then logged as a warning).
+    motion_known_once: bool,
+    rx_failing: bool,
     /// When a frame last went out (any message).
     last_sent_at: Option<Duration>,
     state: State,
@@ -180,6 +212,9 @@ impl<B: CanBus> ControlThread<B> {
             worst_since_command: None,
             faults: FaultBits::empty(),
             sensor: SensorFaults::empty(),
+            motion_fault: self.motion.as_ref().map(|_| MotionFault::Missing),
+            motion_known_once: false,
+            rx_failing: false,
             last_sent_at: None,
             state: State::Init,
             command: self.decider.command(),
@@ -198,6 +233,7 @@ impl<B: CanBus> ControlThread<B> {
         while !(self.shutdown.is_requested() || self.finish.is_requested()) {
             self.drain(&mut s);
             let now = self.clock.now();
+            self.receive(&mut s, now);
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
             let escalation = s
@@ -339,11 +375,100 @@ impl<B: CanBus> ControlThread<B> {
         }
     }
 
-    /// What `snapshot` tells the decider (faults are added when the command is decided).
+    /// What `snapshot` tells the decider, at the speed known now (faults are added when the
+    /// command is decided).
     fn input_of(&self, snapshot: &Snapshot) -> DecisionInput {
         DecisionInput {
             global_warning: snapshot.global_warning,
-            ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed)
+            ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(self.clock.now()))
+        }
+    }
+
+    /// Where the decision's speed comes from, for the logs.
+    fn motion_label(&self, s: &Loop) -> &'static str {
+        match (&self.motion, s.motion_fault) {
+            (None, _) => "not-configured",
+            (Some(_), None) => "measured",
+            (Some(_), Some(f)) => f.name(),
+        }
+    }
+
+    /// The speed the stopping distances are computed with at `now`, m/s.
+    fn speed(&self, now: Duration) -> f64 {
+        self.motion.as_ref().map_or(self.assumed_speed, |m| {
+            m.monitor.decision_speed(now, self.assumed_speed)
+        })
+    }
+
+    /// Reads what the vehicle sent (without blocking), then the motion's state at `now`, with
+    /// its transitions logged.
+    fn receive(&mut self, s: &mut Loop, now: Duration) {
+        let Some(motion) = self.motion.as_mut() else {
+            return;
+        };
+        if let Some(rx) = motion.rx.as_mut() {
+            for _ in 0..MAX_RX_PER_TURN {
+                match rx.try_recv() {
+                    Ok(Some(frame)) => {
+                        if s.rx_failing {
+                            tracing::info!("CAN receive recovered");
+                            s.rx_failing = false;
+                        }
+                        if frame.id != motion.id {
+                            continue;
+                        }
+                        if let Err(rejection) = motion.monitor.receive(frame.payload(), now) {
+                            tracing::debug!(
+                                ?rejection,
+                                data = ?frame.payload(),
+                                "VCU_Motion frame rejected"
+                            );
+                        }
+                    }
+                    Ok(None) => break,
+                    Err(error) => {
+                        if !s.rx_failing {
+                            tracing::warn!(
+                                %error,
+                                "CAN receive failed: the vehicle's motion goes stale (logged once                                  until it recovers)"
+                            );
+                            s.rx_failing = true;
+                        }
+                        break;
+                    }
+                }
+            }
+        }
+        let status = motion.monitor.status(now);
+        let fault = status.fault();
+        let counters = motion.monitor.counters();
+        s.report.motion_accepted = counters.accepted;
+        s.report.motion_rejected = counters.rejected();
+        if fault != s.motion_fault {
+            match (fault, status.motion()) {
+                (None, Some(m)) => {
+                    s.motion_known_once = true;
+                    tracing::info!(
+                        speed_kmh = m.speed * 3.6,
+                        yaw_rate = m.yaw_rate,
+                        "vehicle motion known: stopping distances at the measured speed"
+                    );
+                }
+                (Some(f), _) => {
+                    if s.motion_known_once {
+                        s.report.motion_lost = true;
+                    }
+                    tracing::warn!(
+                        motion_fault = %f,
+                        assumed_speed_kmh = self.assumed_speed * 3.6,
+                        accepted = counters.accepted,
+                        rejected = counters.rejected(),
+                        "vehicle motion unknown: stopping distances at the assumed speed"
+                    );
+                }
+                (None, None) => {}
+            }
+            s.motion_fault = fault;
         }
     }
 
@@ -380,6 +505,7 @@ impl<B: CanBus> ControlThread<B> {
                 faults = %s.faults,
                 obstacle_m = input.obstacle,
                 speed_kmh = input.speed * 3.6,
+                motion = self.motion_label(s),
                 road = %s.latest.map_or(RoadSource::Prior, |l| l.road.source),
                 "decision changed"
             );
@@ -390,6 +516,7 @@ impl<B: CanBus> ControlThread<B> {
             s.report.first_stop_at = Some(self.clock.now());
             s.report.first_stop_snapshot_at = s.latest.map(|l| l.taken_at);
             s.report.first_stop_frame_at = s.latest.map(|l| l.capture_time());
+            s.report.first_stop_speed = Some(input.speed);
         }
         self.sent(s, r, "FLYD_Command");
         s.report.commands_sent += 1;
@@ -404,6 +531,7 @@ impl<B: CanBus> ControlThread<B> {
                 .latest
                 .map_or(Duration::MAX, |l| now.saturating_sub(l.capture_time())),
             sensor: s.sensor,
+            motion_fault: s.motion_fault.is_some(),
             generations_per_sec: s.gen_rate.rate(),
             cam_fps_left: s.left_fps.rate(),
             cam_fps_right: s.right_fps.rate(),
@@ -476,6 +604,10 @@ impl<B: CanBus> ControlThread<B> {
             road_height_m = latest.map(|l| l.road.plane.height),
             road_pitch_deg = latest.map(|l| l.road.plane.pitch_deg()),
             road_roll_deg = latest.map(|l| l.road.plane.roll_deg()),
+            speed_kmh = self.speed(self.clock.now()) * 3.6,
+            motion = self.motion_label(s),
+            motion_accepted = s.report.motion_accepted,
+            motion_rejected = s.report.motion_rejected,
             decision = %s.command,
             state = %s.state,
             faults = %s.faults,

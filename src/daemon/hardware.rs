@@ -7,12 +7,15 @@ use std::path::Path;
 use super::DaemonError;
 use super::clock::SharedClock;
 use super::mock_camera::mock_cameras;
-use crate::bus::{CandumpLogBus, ReopeningBus, RetryPolicy, SocketCanBus};
+use super::mock_vehicle::MockVehicle;
+use crate::bus::{
+    CandumpLogBus, CandumpReplayRx, ReopeningBus, RetryPolicy, SocketCanBus, SocketCanRx,
+};
 use crate::capture::{V4l2Config, V4l2Source};
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
 use crate::daemon::clock::SystemClock;
 use crate::source::FrameSource;
-use flyd_core::can::bus::CanBus;
+use flyd_core::can::bus::{CanBus, CanReceiver};
 
 /// The bus `target` names: a SocketCAN interface, or a candump log (`-` = stdout) whose
 /// lines carry wall-clock timestamps as `candump -l` writes them (each line is flushed
@@ -45,6 +48,54 @@ pub fn open_bus(target: &CanTarget) -> Result<Box<dyn CanBus>, DaemonError> {
                 SystemClock,
             )))
         }
+    }
+}
+
+/// Where the vehicle's frames (its motion) come from, or `None` when the configuration
+/// wants no motion (`vehicle.motion = "none"`) or nothing can send it:
+///
+/// - `input`, a candump log (`flyd run --can-input`): its frames replayed on `clock` from now,
+///   whatever the bus (a recorded drive's bus, without a kernel);
+/// - a SocketCAN interface: a socket of its own receiving the motion's ID only, reopened as
+///   the sending one is when the interface goes;
+/// - a candump log as the bus, with mock cameras: the hw-mock vehicle, sending its scenario's
+///   speed ([`MockVehicle`]); with real cameras nothing (MotionFault, assumed speed).
+pub fn open_receiver(
+    config: &DaemonConfig,
+    input: Option<&Path>,
+    clock: &SharedClock,
+) -> Result<Option<Box<dyn CanReceiver>>, DaemonError> {
+    if config.motion().is_none() {
+        return Ok(None);
+    }
+    let motion = config.can.messages.motion;
+    if let Some(path) = input {
+        let clock = clock.clone();
+        let rx = CandumpReplayRx::open(path, move || clock.now())?;
+        tracing::info!(
+            input = %path.display(),
+            frames = rx.remaining(),
+            "CAN input: replaying a candump log as the received frames"
+        );
+        return Ok(Some(Box::new(rx)));
+    }
+    match (&config.can.target, &config.cameras.source) {
+        (CanTarget::Interface(iface), _) => {
+            let name = iface.clone();
+            let open = move || SocketCanRx::open(&name, &[motion.id]);
+            ReopeningBus::new(iface, open, super::MonotonicClock)
+                .map(|rx| Some(Box::new(rx) as Box<dyn CanReceiver>))
+                .map_err(|error| DaemonError::Bus {
+                    target: iface.clone(),
+                    error,
+                })
+        }
+        (CanTarget::Log { .. }, CameraSource::Mock { scenario, .. }) => {
+            Ok(hw_mock::Scenario::by_name(scenario).map(|s| {
+                Box::new(MockVehicle::new(s, motion, clock.clone())) as Box<dyn CanReceiver>
+            }))
+        }
+        (CanTarget::Log { .. }, CameraSource::Devices { .. }) => Ok(None),
     }
 }
 

@@ -37,6 +37,7 @@ pub mod evolution;
 pub mod faults;
 pub mod hardware;
 pub mod mock_camera;
+pub mod mock_vehicle;
 pub mod notify;
 pub mod pairer;
 pub mod ring;
@@ -59,14 +60,15 @@ pub use threads::{Shutdown, spawn_named};
 
 use crate::config::{ConfigError, DaemonConfig};
 use capture::{CameraHealth, CaptureThread};
-use control::{ControlThread, Inputs};
+use control::{ControlThread, Inputs, MotionInputs};
 use evolution::{EvolutionCounters, EvolutionThread};
 use faults::{FaultConfig, FaultMonitor};
-use flyd_core::can::bus::CanBus;
+use flyd_core::can::bus::{CanBus, CanReceiver};
 use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::motion::MotionMonitor;
 use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::sensor::SensorMonitor;
 use notify::ServiceNotifier;
@@ -120,6 +122,8 @@ pub enum DaemonError {
         #[source]
         error: std::io::Error,
     },
+    #[error("CAN input")]
+    CanInput(#[from] crate::bus::ReplayLogError),
     #[error("mock cameras")]
     MockCameras(#[from] mock_camera::MockCameraError),
     #[error("camera {device}")]
@@ -180,17 +184,35 @@ const EVOLUTION: &str = "flyd-evolution";
 const CONTROL: &str = "flyd-control";
 const CAPTURE: [&str; 2] = ["flyd-cap-left", "flyd-cap-right"];
 
+/// The CAN interface as the daemon uses it: frames out, and the vehicle's frames in.
+pub struct CanPort {
+    pub tx: Box<dyn CanBus>,
+    /// `None`: nothing is received (a configured vehicle motion is then MotionFault).
+    pub rx: Option<Box<dyn CanReceiver>>,
+}
+
+impl<B: CanBus + 'static> From<B> for CanPort {
+    /// A bus that only sends.
+    fn from(bus: B) -> Self {
+        Self {
+            tx: Box::new(bus),
+            rx: None,
+        }
+    }
+}
+
 /// Runs the daemon on the given hardware until `shutdown` is requested or a camera ends its
 /// stream. See the module docs for the threads and their promises.
 ///
 /// `clock` must be the timebase of the cameras' frame timestamps.
 pub fn run(
     cameras: Cameras,
-    bus: Box<dyn CanBus>,
+    can: impl Into<CanPort>,
     clock: SharedClock,
     config: &DaemonConfig,
     shutdown: Shutdown,
 ) -> Result<RunReport, DaemonError> {
+    let can = can.into();
     let (width, height) = (config.cameras.width, config.cameras.height);
     let rig = config.load_rig()?;
     for source in [&cameras.0, &cameras.1] {
@@ -208,7 +230,7 @@ pub fn run(
     let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
     let decider = Decider::new(config.decision)?;
-    let tx = Transmitter::new(bus, config.can.messages)?;
+    let tx = Transmitter::new(can.tx, config.can.messages)?;
     let (left_writer, left_reader) = frame_ring(width, height)?;
     let (right_writer, right_reader) = frame_ring(width, height)?;
     let stereo = StereoFrame::new(
@@ -311,7 +333,12 @@ pub fn run(
         },
         clock: clock.clone(),
         can_silence: config.control.can_silence,
-        speed: config.vehicle.assumed_speed,
+        assumed_speed: config.vehicle.assumed_speed,
+        motion: config.motion().map(|m| MotionInputs {
+            monitor: MotionMonitor::new(m),
+            id: config.can.messages.motion.id,
+            rx: can.rx,
+        }),
         can: config.can.messages,
         stats_interval: config.logging.stats_interval,
         shutdown: shutdown.clone(),

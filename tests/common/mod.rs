@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use flyd::bus::{MemoryBus, RecordedFrame};
+use flyd::bus::{MemoryBus, MemoryRx, RecordedFrame};
 use flyd::config::DaemonConfig;
 use flyd::daemon::{self, MonotonicClock, RunReport, SharedClock, Shutdown};
 use flyd::source::{FrameMeta, FrameSource, SourceError};
@@ -256,6 +256,15 @@ pub fn start(config: DaemonConfig) -> Running {
 }
 
 pub fn start_with(config: DaemonConfig, control: Arc<SceneControl>) -> Running {
+    start_receiving(config, control, None)
+}
+
+/// As [`start_with`], with `rx` as the frames the daemon receives (the vehicle's motion).
+pub fn start_receiving(
+    config: DaemonConfig,
+    control: Arc<SceneControl>,
+    rx: Option<MemoryRx>,
+) -> Running {
     let _ = tracing_subscriber::fmt()
         .with_test_writer()
         .with_max_level(tracing::Level::INFO)
@@ -267,7 +276,11 @@ pub fn start_with(config: DaemonConfig, control: Arc<SceneControl>) -> Running {
     let shutdown = Shutdown::new();
     let (b, c, s) = (bus.clone(), clock.clone(), shutdown.clone());
     let handle = daemon::spawn_named("test-daemon", move || {
-        daemon::run(cameras, Box::new(b), c, &config, s)
+        let port = daemon::CanPort {
+            tx: Box::new(b),
+            rx: rx.map(|rx| Box::new(rx) as Box<dyn flyd_core::can::bus::CanReceiver>),
+        };
+        daemon::run(cameras, port, c, &config, s)
     })
     .expect("spawn");
     Running {

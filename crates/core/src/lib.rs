@@ -19,6 +19,7 @@ pub mod engine;
 pub mod frame;
 pub mod geometry;
 pub mod isa;
+pub mod motion;
 pub mod perception;
 pub mod road;
 pub mod sensor;

@@ -42,6 +42,50 @@ impl<B: CanBus + ?Sized> CanBus for Box<B> {
     }
 }
 
+/// A classic CAN data frame received.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReceivedFrame {
+    /// [`CAN_EFF_FLAG`] convention, as for sending.
+    pub id: u32,
+    /// Data length (0..=8): a wrong DLC is the decoder's to reject, so it is kept.
+    pub len: u8,
+    pub data: [u8; CAN_MAX_DLEN],
+}
+
+impl ReceivedFrame {
+    /// `None` when `data` is longer than a classic frame.
+    pub fn new(id: u32, data: &[u8]) -> Option<Self> {
+        let len = u8::try_from(data.len())
+            .ok()
+            .filter(|&l| usize::from(l) <= CAN_MAX_DLEN)?;
+        let mut bytes = [0u8; CAN_MAX_DLEN];
+        bytes[..data.len()].copy_from_slice(data);
+        Some(Self {
+            id,
+            len,
+            data: bytes,
+        })
+    }
+
+    /// The frame's data bytes.
+    pub fn payload(&self) -> &[u8] {
+        &self.data[..usize::from(self.len).min(CAN_MAX_DLEN)]
+    }
+}
+
+/// A source of received CAN frames (the vehicle's messages to flyd).
+pub trait CanReceiver: Send {
+    /// The next received frame, or `None` when none is pending. Never blocks: flyd polls it
+    /// from the loop that sends. Errors are classified as for [`CanBus::send`].
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError>;
+}
+
+impl<R: CanReceiver + ?Sized> CanReceiver for Box<R> {
+    fn try_recv(&mut self) -> Result<Option<ReceivedFrame>, BusError> {
+        (**self).try_recv()
+    }
+}
+
 /// A failed send, classified (see the module docs for the classes).
 ///
 /// It is `Clone + PartialEq` (it keeps the errno, not the `io::Error`) so that tests can make

@@ -28,7 +28,8 @@
 //!
 //! | bits   | signal              | type | scale | range |
 //! |--------|---------------------|------|-------|-------|
-//! | 12..16 | `State`             | u4   | enum [`State`] | 0..=4 |
+//! | 12..15 | `State`             | u3   | enum [`State`] | 0..=4 |
+//! | 15     | `MotionFault`       | u1   | 1 = vehicle motion unknown | 0..=1 |
 //! | 16..24 | `FaultBits`         | u8   | bitfield [`FaultBits`] | any |
 //! | 24..36 | `PerceptionAgeMs`   | u12  | 1 ms  | 0..=4095 (4095 = that old or older, or never) |
 //! | 36..40 | `SensorFaults`      | u4   | bitfield [`SensorFaults`] | any (each also sets `CAMERA_ERROR`) |
@@ -44,6 +45,14 @@
 //! | 16..32 | `Distance`      | u16  | 0.01 m | 0..=655.35 (vehicle-frame z, forward) |
 //! | 32..48 | `Lateral`       | i16  | 0.01 m | -327.68..=327.67 (vehicle-frame x, positive right) |
 //! | 48..56 | `Confidence`    | u8   | 1 %    | 0..=100 |
+//!
+//! `VCU_Motion` (received; default ID 0x110, Data ID 0x0110, every 20 ms, sent by the VCU):
+//!
+//! | bits   | signal        | type | scale       | range |
+//! |--------|---------------|------|-------------|-------|
+//! | 12     | `MotionValid` | u1   | 1 = values valid | |
+//! | 16..32 | `Speed`       | i16  | 0.01 m/s    | -327.68..=327.67 (positive forward) |
+//! | 32..48 | `YawRate`     | i16  | 0.0001 rad/s | -3.2768..=3.2767 (positive turning left) |
 //!
 //! Bits not listed are reserved: sent as 0, ignored on decode (so a later version can use them
 //! without breaking older receivers).
@@ -264,7 +273,8 @@ mod layout {
 
     pub mod status {
         use super::Field;
-        pub const STATE: Field = Field { start: 12, len: 4 };
+        pub const STATE: Field = Field { start: 12, len: 3 };
+        pub const MOTION_FAULT: Field = Field { start: 15, len: 1 };
         pub const FAULTS: Field = Field { start: 16, len: 8 };
         pub const AGE_MS: Field = Field { start: 24, len: 12 };
         pub const SENSOR: Field = Field { start: 36, len: 4 };
@@ -287,6 +297,15 @@ mod layout {
         pub const ROAD_MEASURED: Field = Field { start: 14, len: 1 };
         pub const HEIGHT: Field = Field { start: 56, len: 8 };
         pub const HEIGHT_PER_METRE: f64 = 50.0;
+    }
+
+    pub mod motion {
+        use super::Field;
+        pub const VALID: Field = Field { start: 12, len: 1 };
+        pub const SPEED: Field = Field { start: 16, len: 16 };
+        pub const SPEED_PER_UNIT: f64 = 100.0;
+        pub const YAW_RATE: Field = Field { start: 32, len: 16 };
+        pub const YAW_RATE_PER_UNIT: f64 = 10_000.0;
     }
 }
 
@@ -445,6 +464,9 @@ pub struct StatusMsg {
     pub perception_age: Duration,
     /// Which sensor checks failed ([`crate::sensor`]); any of them also sets `CAMERA_ERROR`.
     pub sensor: SensorFaults,
+    /// The vehicle's motion is not known (missing, stale, invalid or implausible `VCU_Motion`,
+    /// [`crate::motion`]): the decision assumes the configured highest speed.
+    pub motion_fault: bool,
     /// Evolution rate, generations per second (resolution 2, saturates at 510).
     pub generations_per_sec: f64,
     /// Left camera frame rate, fps (resolution 0.5, saturates at 127.5).
@@ -463,6 +485,7 @@ impl CanMessage for StatusMsg {
         use layout::status::*;
         let mut w = 0u64;
         STATE.put(&mut w, u64::from(self.state.raw()));
+        MOTION_FAULT.put(&mut w, u64::from(self.motion_fault));
         FAULTS.put(&mut w, u64::from(self.faults.bits()));
         let age_ms = u64::try_from(self.perception_age.as_millis()).unwrap_or(u64::MAX);
         AGE_MS.put(&mut w, age_ms.min(AGE_MS.max_unsigned()));
@@ -500,6 +523,7 @@ impl CanMessage for StatusMsg {
             faults: FaultBits::from_bits(FAULTS.get(w) as u8),
             perception_age: Duration::from_millis(AGE_MS.get(w)),
             sensor: SensorFaults::from_bits(SENSOR.get(w) as u8),
+            motion_fault: MOTION_FAULT.get(w) == 1,
             generations_per_sec: GENERATIONS.get(w) as f64 / GENERATIONS_PER_UNIT,
             cam_fps_left: FPS_LEFT.get(w) as f64 / FPS_PER_UNIT,
             cam_fps_right: FPS_RIGHT.get(w) as f64 / FPS_PER_UNIT,
@@ -624,6 +648,54 @@ impl CanMessage for ObstacleMsg {
 }
 default_codec!(ObstacleMsg);
 
+/// `VCU_Motion`: the vehicle's own motion, sent by the vehicle (VCU) and received by flyd.
+///
+/// flyd decodes it ([`crate::motion::MotionMonitor`] checks it further: counter, age,
+/// plausibility); it encodes it too, as the mock vehicle and the tests send it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionMsg {
+    /// The sender vouches for the values (`MotionValid` = 1); 0 = the VCU does not know its
+    /// motion (a wheel-speed sensor fault): the values must be ignored.
+    pub valid: bool,
+    /// Longitudinal speed, m/s, positive forward, negative reversing (resolution 0.01).
+    pub speed: f64,
+    /// Yaw rate, rad/s, positive turning left (counter-clockwise seen from above, ISO 8855;
+    /// resolution 0.0001).
+    pub yaw_rate: f64,
+}
+
+impl CanMessage for MotionMsg {
+    const NAME: &'static str = "VCU_Motion";
+    const DEFAULT_ID: u32 = 0x110;
+    const DEFAULT_DATA_ID: u16 = 0x0110;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+
+    fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
+        use layout::motion::*;
+        let mut w = 0u64;
+        let valid = self.valid && self.speed.is_finite() && self.yaw_rate.is_finite();
+        VALID.put(&mut w, u64::from(valid));
+        SPEED.put_signed(&mut w, to_raw_signed(self.speed, SPEED_PER_UNIT, SPEED));
+        YAW_RATE.put_signed(
+            &mut w,
+            to_raw_signed(self.yaw_rate, YAW_RATE_PER_UNIT, YAW_RATE),
+        );
+        seal(w, counter, data_id)
+    }
+
+    fn decode_with(data: &[u8], data_id: u16) -> Result<(Self, AliveCounter), DecodeError> {
+        use layout::motion::*;
+        let (w, counter) = unseal(data, data_id)?;
+        let msg = Self {
+            valid: VALID.get(w) == 1,
+            speed: SPEED.get_signed(w) as f64 / SPEED_PER_UNIT,
+            yaw_rate: YAW_RATE.get_signed(w) as f64 / YAW_RATE_PER_UNIT,
+        };
+        Ok((msg, counter))
+    }
+}
+default_codec!(MotionMsg);
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -704,6 +776,7 @@ mod tests {
             faults: FaultBits::STEREO_SKEW | FaultBits::INTERNAL,
             perception_age: Duration::from_millis(987),
             sensor: SensorFaults::FROZEN | SensorFaults::BLIND,
+            motion_fault: true,
             generations_per_sec: 64.0,
             cam_fps_left: 14.5,
             cam_fps_right: 15.0,
@@ -749,6 +822,7 @@ mod tests {
                 faults: FaultBits::all(),
                 perception_age: Duration::ZERO,
                 sensor: SensorFaults::from_bits(0x0F),
+                motion_fault: false,
                 generations_per_sec: 0.0,
                 cam_fps_left: 0.0,
                 cam_fps_right: 0.0,
@@ -788,6 +862,7 @@ mod tests {
             faults: FaultBits::empty(),
             perception_age: Duration::MAX,
             sensor: SensorFaults::empty(),
+            motion_fault: false,
             generations_per_sec: 5000.0,
             cam_fps_left: 1000.0,
             cam_fps_right: -5.0,
@@ -922,19 +997,28 @@ mod tests {
             faults: FaultBits::empty(),
             perception_age: Duration::ZERO,
             sensor: SensorFaults::empty(),
+            motion_fault: false,
             generations_per_sec: 0.0,
             cam_fps_left: 0.0,
             cam_fps_right: 0.0,
         }
         .encode(c(0));
-        let mut state9 = status;
-        state9[1] = 0x90;
+        let mut state6 = status;
+        state6[1] = 0x60;
         assert_eq!(
-            StatusMsg::decode(&resealed(state9, 0x0121)),
+            StatusMsg::decode(&resealed(state6, 0x0121)),
             Err(DecodeError::OutOfRange {
                 signal: "State",
-                raw: 9
+                raw: 6
             })
+        );
+        // Bit 15 is MotionFault, not part of State.
+        let mut motion = status;
+        motion[1] = 0x90;
+        let decoded = StatusMsg::decode(&resealed(motion, 0x0121)).expect("decodes");
+        assert_eq!(
+            (decoded.state, decoded.motion_fault),
+            (State::Running, true)
         );
 
         let mut conf = ObstacleMsg::NONE.encode(c(0));
@@ -977,6 +1061,42 @@ mod tests {
         );
         assert_eq!(FaultBits::empty().to_string(), "none");
         assert_eq!(FaultBits::all().names().count(), 8);
+    }
+
+    #[test]
+    fn motion_roundtrips_and_saturates() {
+        let msg = MotionMsg {
+            valid: true,
+            speed: -2.5,
+            yaw_rate: 0.1234,
+        };
+        let (back, counter) = MotionMsg::decode_with(&msg.encode(c(6)), 0x0110).expect("decodes");
+        assert_eq!((back, counter), (msg, c(6)));
+        // 12.34 m/s = 1234 = 0x04D2 in bytes 2-3; valid in bit 12.
+        let bytes = MotionMsg {
+            valid: true,
+            speed: 12.34,
+            yaw_rate: 0.0,
+        }
+        .encode(c(1));
+        assert_eq!(&bytes[1..4], &[0x11, 0xD2, 0x04]);
+        let fast = MotionMsg {
+            valid: true,
+            speed: 1e6,
+            yaw_rate: -1e6,
+        };
+        let back = MotionMsg::decode(&fast.encode(c(0))).expect("decodes");
+        assert_eq!((back.speed, back.yaw_rate), (327.67, -3.2768));
+        let nan = MotionMsg {
+            valid: true,
+            speed: f64::NAN,
+            yaw_rate: 0.0,
+        };
+        assert!(!MotionMsg::decode(&nan.encode(c(0))).expect("decodes").valid);
+        assert!(matches!(
+            MotionMsg::decode(&fast.encode(c(0))[..6]),
+            Err(DecodeError::WrongLength { actual: 6 })
+        ));
     }
 
     #[test]

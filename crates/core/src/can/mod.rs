@@ -7,6 +7,7 @@
 //! | `FLYD_Command`  | 0x120 | 0x0120 | 20 ms  | CLEAR / SLOW / STOP, deceleration, global warning, reason |
 //! | `FLYD_Status`   | 0x121 | 0x0121 | 20 ms  | state, fault bits, perception age, rates |
 //! | `FLYD_Obstacle` | 0x122 | 0x0122 | 100 ms | nearest relevant obstacle |
+//! | `VCU_Motion` (received) | 0x110 | 0x0110 | 20 ms | the vehicle's speed and yaw rate ([`crate::motion`]) |
 //!
 //! Every frame: 8 bytes, byte 0 = CRC-8 SAE J1850 over (Data ID lo, Data ID hi, bytes 1..=7),
 //! byte 1 low nibble = alive counter 0..=14 (AUTOSAR E2E profile 1 style). IDs, Data IDs and
@@ -30,7 +31,7 @@ use thiserror::Error;
 
 use bus::{BusError, CanBus};
 use candump::CAN_SFF_MAX;
-use messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
+use messages::{AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, StatusMsg};
 
 /// Where and how often one message is sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -66,6 +67,8 @@ pub struct CanConfig {
     pub command: MessageConfig,
     pub status: MessageConfig,
     pub obstacle: MessageConfig,
+    /// `VCU_Motion`, received: its period is the sender's, what staleness is counted in.
+    pub motion: MessageConfig,
 }
 
 impl Default for CanConfig {
@@ -74,6 +77,7 @@ impl Default for CanConfig {
             command: MessageConfig::default_for::<CommandMsg>(),
             status: MessageConfig::default_for::<StatusMsg>(),
             obstacle: MessageConfig::default_for::<ObstacleMsg>(),
+            motion: MessageConfig::default_for::<MotionMsg>(),
         }
     }
 }
@@ -107,11 +111,12 @@ pub enum CanConfigError {
 }
 
 impl CanConfig {
-    fn named(&self) -> [(&'static str, MessageConfig); 3] {
+    fn named(&self) -> [(&'static str, MessageConfig); 4] {
         [
             (CommandMsg::NAME, self.command),
             (StatusMsg::NAME, self.status),
             (ObstacleMsg::NAME, self.obstacle),
+            (MotionMsg::NAME, self.motion),
         ]
     }
 
@@ -125,7 +130,8 @@ impl CanConfig {
                 return Err(CanConfigError::ZeroPeriod { message });
             }
             // The command and the status are what the VCU watches for a live flyd (3 missed
-            // periods); the obstacle is information.
+            // periods), the motion what flyd watches for a live VCU; the obstacle is
+            // information.
             let max = if message == ObstacleMsg::NAME {
                 1000
             } else {
@@ -396,6 +402,7 @@ mod tests {
             faults: crate::status::FaultBits::empty(),
             perception_age: Duration::from_millis(30),
             sensor: crate::sensor::SensorFaults::empty(),
+            motion_fault: false,
             generations_per_sec: 100.0,
             cam_fps_left: 30.0,
             cam_fps_right: 30.0,

@@ -1,0 +1,181 @@
+//! `flyd run` with the vehicle's motion and no kernel CAN: the hw-mock vehicle on the mock
+//! bus, and a recorded drive's bus replayed with `--can-input`. What flyd sent is decoded with
+//! the project's DBC by can-dbc (tests/vm/can_log.rs), as a VCU built from it would read it.
+
+#[path = "vm/can_log.rs"]
+#[allow(dead_code)] // the VM suite's decoder; this file uses a part of it
+mod can_log;
+#[path = "common/dbc_signals.rs"]
+mod dbc_signals;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use can_log::{Decoder, Frame};
+use flyd_core::can::candump::format_candump_line;
+use flyd_core::can::messages::{AliveCounter, MotionMsg};
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// The demo at 320x240 with 1000 flies on `scenario`, the vehicle's motion from CAN.
+fn config(dir: &Path, scenario: &str) -> PathBuf {
+    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let text = text
+        .replace(
+            "mock = \"pedestrian-steps-in\"",
+            &format!("mock = \"{scenario}\""),
+        )
+        .replace("width = 640", "width = 320")
+        .replace("height = 480", "height = 240")
+        .replace("flies = 5000", "flies = 1000")
+        .replace("motion = \"none\"", "motion = \"can\"");
+    assert!(
+        text.contains("motion = \"can\""),
+        "demo.toml has a [vehicle] motion key"
+    );
+    let path = dir.join("flyd.toml");
+    std::fs::write(&path, text).expect("write config");
+    path
+}
+
+/// Runs flyd for `seconds` and decodes what it sent.
+fn run(config: &Path, input: Option<&Path>, seconds: f64) -> Vec<Frame> {
+    let dir = config.parent().expect("dir");
+    let log = dir.join("sent.log");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_flyd"));
+    cmd.args(["run", "--config"])
+        .arg(config)
+        .arg("--can-log")
+        .arg(&log)
+        .args(["--duration", &seconds.to_string()]);
+    if let Some(input) = input {
+        cmd.arg("--can-input").arg(input);
+    }
+    let out = cmd.output().expect("flyd runs");
+    assert!(
+        out.status.success(),
+        "flyd run: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&log).expect("CAN log");
+    let frames = Decoder::new().decode_log(&text);
+    assert!(frames.iter().all(|f| f.crc_ok), "every frame's CRC holds");
+    frames
+}
+
+/// (seconds since the first frame, value).
+type Timeline<T> = Vec<(f64, T)>;
+
+/// (seconds since the first frame, command) of every FLYD_Command but the last one (the
+/// shutdown's safe command), and the same for the
+/// MotionFault of every FLYD_Status.
+fn timeline(frames: &[Frame]) -> (Timeline<String>, Timeline<f64>) {
+    let t0 = frames.first().map_or(0.0, |f| f.time);
+    let commands = frames
+        .iter()
+        .filter(|f| f.message == "FLYD_Command" && f.label("CommandReason") != "SHUTDOWN")
+        .map(|f| (f.time - t0, f.label("Command").to_string()))
+        .collect();
+    let faults = frames
+        .iter()
+        .filter(|f| f.message == "FLYD_Status")
+        .map(|f| (f.time - t0, f.value("MotionFault")))
+        .collect();
+    (commands, faults)
+}
+
+#[test]
+fn the_parked_mock_vehicle_reports_standstill_and_flyd_does_not_brake_for_what_is_4m_ahead() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = config(dir.path(), "pedestrian-4m");
+    let frames = run(&config, None, 3.0);
+    let (commands, faults) = timeline(&frames);
+    // After the start (SLOW, the start-up fallback, then its hold), the motion is known.
+    let late: Vec<_> = faults.iter().filter(|(t, _)| *t > 1.0).collect();
+    assert!(
+        !late.is_empty() && late.iter().all(|(_, f)| *f == 0.0),
+        "{faults:?}"
+    );
+    // At 0 km/h the stopping distance is the 2 m margin: the pedestrian 4 m ahead is CLEAR.
+    let after: Vec<_> = commands.iter().filter(|(t, _)| *t > 2.0).collect();
+    assert!(!after.is_empty(), "commands after 2 s");
+    assert!(
+        after.iter().all(|(_, c)| c == "CLEAR"),
+        "at a standstill: {after:?}"
+    );
+    assert!(commands.iter().all(|(_, c)| c != "STOP"), "{commands:?}");
+}
+
+/// A drive's bus as candump recorded it: `VCU_Motion` at 20 ms, 30 km/h for `seconds`, then
+/// nothing (the VCU went silent); a few bad frames among the good ones.
+fn recorded_drive(path: &Path, seconds: f64) {
+    let mut text = String::new();
+    let mut counter = AliveCounter::ZERO;
+    let t0 = Duration::from_secs(1_764_000_000);
+    let ms = Duration::from_millis;
+    let periods = (seconds / 0.02).round() as u32;
+    for k in 0..periods {
+        let t = t0 + ms(20 * u64::from(k));
+        let msg = MotionMsg {
+            valid: true,
+            speed: 30.0 / 3.6,
+            yaw_rate: 0.0,
+        };
+        let data = msg.encode(counter.advance());
+        text.push_str(&format_candump_line(t, "vcan0", 0x110, &data));
+        text.push('\n');
+        if k % 10 == 5 {
+            // Corrupted, and a speed no vehicle has: ignored.
+            let mut bad = data;
+            bad[2] ^= 0xFF;
+            text.push_str(&format_candump_line(t + ms(1), "vcan0", 0x110, &bad));
+            text.push('\n');
+            let fast = MotionMsg {
+                speed: 300.0,
+                ..msg
+            };
+            let data = fast.encode(counter.advance());
+            text.push_str(&format_candump_line(t + ms(2), "vcan0", 0x110, &data));
+            text.push('\n');
+        }
+        // Another node's frame on the same bus: not flyd's business.
+        text.push_str(&format_candump_line(t + ms(5), "vcan0", 0x3A0, &[1, 2, 3]));
+        text.push('\n');
+    }
+    std::fs::write(path, text).expect("write log");
+}
+
+#[test]
+fn a_recorded_drive_at_30_kmh_stops_for_the_pedestrian_and_its_silence_is_a_motion_fault() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = config(dir.path(), "pedestrian-4m");
+    let input = dir.path().join("drive.log");
+    recorded_drive(&input, 2.0);
+    let frames = run(&config, Some(&input), 3.5);
+    let (commands, faults) = timeline(&frames);
+    // Known from the start (the second frame) to the end of the log at 2 s, unknown 3
+    // periods later. The log starts when flyd opens its input, a few tens of ms after the
+    // first frame flyd sends: tolerances of 200 ms.
+    let known: Vec<_> = faults
+        .iter()
+        .filter(|(t, _)| (0.2..1.8).contains(t))
+        .collect();
+    assert!(
+        !known.is_empty() && known.iter().all(|(_, f)| *f == 0.0),
+        "motion known while the VCU sends: {faults:?}"
+    );
+    let lost: Vec<_> = faults.iter().filter(|(t, _)| *t > 2.3).collect();
+    assert!(
+        !lost.is_empty() && lost.iter().all(|(_, f)| *f == 1.0),
+        "MotionFault once it is silent: {faults:?}"
+    );
+    // At 30 km/h measured, then assumed: STOP 4 m before the pedestrian, throughout.
+    let stops: Vec<_> = commands.iter().filter(|(t, _)| *t > 1.0).collect();
+    assert!(
+        !stops.is_empty() && stops.iter().all(|(_, c)| c == "STOP"),
+        "{commands:?}"
+    );
+}
