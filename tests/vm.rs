@@ -370,7 +370,12 @@ impl FlydRun {
     fn check_bus_with_gaps(&self, max_gap: f64) -> (String, usize) {
         let decoder = Decoder::new();
         assert!(!self.frames.is_empty(), "no CAN frames at all");
-        let bad: Vec<&Frame> = self.frames.iter().filter(|f| !f.crc_ok).collect();
+        // flyd's frames; a scenario's own (VCU_Motion) may be bad on purpose.
+        let bad: Vec<&Frame> = self
+            .frames
+            .iter()
+            .filter(|f| f.message.starts_with("FLYD_") && !f.crc_ok)
+            .collect();
         assert!(
             bad.is_empty(),
             "{} frames with a wrong CRC, first {:?}",
@@ -1013,6 +1018,180 @@ fn flyd_reopens_a_vanished_can_interface_and_sends_again() {
         vanished.len(),
         (first_after.time - back) * 1e3,
         after.len()
+    ));
+}
+
+/// The host's script of the vehicle's bus for flyd_motion: `VCU_Motion` every 20 ms, standing
+/// still for 5 s, then driving off at 5 m/s^2 to 30 km/h, held to 8 s; a bad frame every 250 ms
+/// among the good ones (a flipped CRC, an E2E-valid 300 m/s, a DLC of 7, a repeated counter).
+/// Returns the candump log and the counts of good and bad frames.
+fn motion_log() -> (String, u64, u64) {
+    use flyd_core::can::candump::format_candump_line;
+    use flyd_core::can::messages::{AliveCounter, MotionMsg};
+    let t0 = Duration::from_secs(1_764_000_000);
+    let mut text = String::new();
+    let mut line = |t: Duration, data: &[u8]| {
+        text.push_str(&format_candump_line(t0 + t, "vcan0", 0x110, data));
+        text.push('\n');
+    };
+    let mut counter = AliveCounter::ZERO;
+    let (mut good, mut bad) = (0, 0);
+    for k in 0..400u32 {
+        let t = Duration::from_millis(20 * u64::from(k));
+        let s = t.as_secs_f64();
+        let msg = MotionMsg {
+            valid: true,
+            speed: (5.0 * (s - 5.0)).clamp(0.0, 30.0 / 3.6),
+            yaw_rate: 0.0,
+        };
+        let data = msg.encode(counter.advance());
+        line(t, &data);
+        good += 1;
+        let after = t + Duration::from_millis(5);
+        match k % 50 {
+            10 => {
+                let mut flipped = data;
+                flipped[3] ^= 0x40;
+                line(after, &flipped);
+            }
+            22 => line(
+                after,
+                &MotionMsg {
+                    speed: 300.0,
+                    ..msg
+                }
+                .encode(counter.advance()),
+            ),
+            35 => line(after, &data[..7]),
+            47 => line(after, &data),
+            _ => continue,
+        }
+        bad += 1;
+    }
+    (text, good, bad)
+}
+
+/// The vehicle's motion on vcan0 (issue 16): canplayer sends `VCU_Motion` while the pedestrian
+/// stands 4 m ahead. Without it flyd assumes 30 km/h (MotionFault, STOP); standing still it
+/// sees no reason to brake 4 m away (CLEAR), whatever the bad frames say; driving off it
+/// stops; when the frames stop, MotionFault within the configured age and STOP at the
+/// assumed speed.
+#[test]
+fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (log, good, bad) = motion_log();
+    let input = dir.path().join("motion.log");
+    std::fs::write(&input, log).expect("write motion.log");
+    let r = run_flyd(flyd_scenario("flyd_motion").input(input));
+    let bus = r.check_bus();
+    r.assert_exited_cleanly();
+    let vcu = r.messages("VCU_Motion");
+    let (first, last) = (
+        vcu.first().expect("VCU_Motion on the bus").time,
+        vcu.last().expect("VCU_Motion on the bus").time,
+    );
+    assert_eq!(
+        vcu.len() as u64,
+        good + bad,
+        "candump saw what canplayer sent"
+    );
+    let fault = |f: &&Frame| f.label("MotionFault") == "UNKNOWN";
+    let statuses = r.statuses_from(0.0);
+    let window = |from: f64, to: f64| -> Vec<&Frame> {
+        statuses
+            .iter()
+            .copied()
+            .filter(|f| f.time >= from && f.time < to)
+            .collect()
+    };
+    let commands = |from: f64, to: f64| -> Vec<&Frame> {
+        r.commands_from(from)
+            .into_iter()
+            .filter(|f| f.time < to)
+            .collect()
+    };
+    let running = statuses
+        .iter()
+        .find(|f| f.label("State") == "RUNNING")
+        .expect("flyd RUNNING")
+        .time;
+
+    // Before the first frame: no motion, MotionFault, STOP at the assumed 30 km/h.
+    let before = window(running, first);
+    assert!(
+        !before.is_empty() && before.iter().all(fault),
+        "{}",
+        label_counts(&before, "MotionFault")
+    );
+    assert!(
+        commands(running + 1.0, first)
+            .iter()
+            .all(|c| c.label("Command") == "STOP"),
+        "STOP at the assumed speed: {}",
+        label_counts(&commands(running, first), "Command")
+    );
+
+    // Standing still (the frames' first 5 s): motion known, CLEAR once STOP's hold is over,
+    // the bad frames (a 300 m/s among them) ignored.
+    let standing = window(first + 0.3, first + 5.0);
+    let known = standing.iter().filter(|f| !fault(f)).count();
+    assert!(
+        known * 100 >= standing.len() * 95,
+        "motion known on {known} of {} statuses while standing",
+        standing.len()
+    );
+    let standing_cmds = commands(first + 2.5, first + 5.0);
+    assert!(
+        !standing_cmds.is_empty() && standing_cmds.iter().all(|c| c.label("Command") == "CLEAR"),
+        "standing 4 m before the pedestrian: {}",
+        label_counts(&standing_cmds, "Command")
+    );
+
+    // Driving off: the stopping distance reaches the pedestrian at ~2.2 m/s (5.45 s).
+    let stop_at = commands(first + 5.0, last)
+        .into_iter()
+        .find(|c| c.label("Command") == "STOP")
+        .map(|c| c.time - first)
+        .expect("a STOP driving off");
+    assert!(stop_at < 6.0, "first STOP {stop_at:.2} s into the frames");
+    let driving = commands(first + 6.0, last + 2.0);
+    assert!(
+        driving.iter().all(|c| c.label("Command") == "STOP"),
+        "{}",
+        label_counts(&driving, "Command")
+    );
+
+    // Silence: MotionFault within the configured age (5 periods, 100 ms) and a status period.
+    let lost = statuses
+        .iter()
+        .find(|f| f.time > last && fault(f))
+        .map(|f| f.time - last)
+        .expect("MotionFault after the last frame");
+    assert!(
+        lost <= 0.35,
+        "MotionFault {:.0} ms after the last frame",
+        lost * 1e3
+    );
+    let after = window(last + lost, last + 2.0);
+    assert!(
+        after.iter().all(fault),
+        "{}",
+        label_counts(&after, "MotionFault")
+    );
+
+    // Every frame was counted, the bad ones rejected.
+    let stopped = r.logged("flyd stopped");
+    let report = stopped.first().expect("the 'flyd stopped' event");
+    assert_eq!(report["motion_rejected"], bad, "{report}");
+    assert_eq!(report["motion_accepted"], good, "{report}");
+    r.run.report(&format!(
+        "{good} VCU_Motion frames and {bad} bad ones (CRC, 300 m/s, DLC 7, repeat) by canplayer: \
+         before them MotionFault and STOP (30 km/h assumed); standing still known on {known}/{} \
+         statuses and CLEAR 4 m before the pedestrian; driving off, first STOP {stop_at:.2} s \
+         into the frames (the stopping distance reaches 4 m at 5.45 s); after the last frame \
+         MotionFault in {:.0} ms, STOP; rejected {bad}, accepted {good}; {bus}",
+        standing.len(),
+        lost * 1e3
     ));
 }
 

@@ -136,7 +136,7 @@ modules=(virtio_pci 9pnet_virtio 9p can-raw vcan videobuf2-vmalloc v4l2loopback)
 declare -A module_params=(
     [v4l2loopback]="devices=2 exclusive_caps=0,0 card_label=flyd-left,flyd-right"
 )
-tools=(/bin/busybox /usr/bin/candump /usr/bin/cansend /usr/bin/cangen)
+tools=(/bin/busybox /usr/bin/candump /usr/bin/cansend /usr/bin/cangen /usr/bin/canplayer)
 
 key="$( {
     echo "$kver" "${modules[*]}" "${module_params[*]}"
