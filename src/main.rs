@@ -113,8 +113,8 @@ struct ReplayArgs {
     width: u32,
     #[arg(long, default_value_t = 480)]
     height: u32,
-    /// The vehicle's speed the decision assumes, km/h (default: the configuration's
-    /// vehicle.assumed_speed_kmh, 30).
+    /// The vehicle's speed the decision assumes, km/h, on every frame (default: a scenario's
+    /// own speed, else the configuration's vehicle.assumed_speed_kmh, 30).
     #[arg(long, value_name = "KMH")]
     speed: Option<f64>,
     /// Take [engine], [perception], [decision], [vehicle] and [evolution] from this daemon
@@ -247,6 +247,8 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         perception: config.perception,
         decision: config.decision,
         speed: speed_kmh / 3.6,
+        fixed_speed: args.speed.is_some(),
+        predict: config.vehicle.predict_flies,
         generations,
         per_frame,
         fps,

@@ -1,5 +1,6 @@
 //! Scripted scenarios: sequences of scenes at a fixed frame rate, with the ground truth a
-//! reaction-time measurement needs. The vehicle is stationary in all but the `driving*` ones,
+//! reaction-time measurement needs. The vehicle is stationary in all but the `driving*` and
+//! `drive-*` ones ([`Scenario::speed_at`]),
 //! where road and roadside come towards it ([`Scene::travelled`]); obstacles are always given in
 //! the vehicle frame. A moving vehicle's frames each cost a full render (a few frames a second
 //! at 640x480): those scenarios are for offline replay, not a live mock camera.
@@ -8,14 +9,22 @@ use crate::world::{Obstacle, Scene};
 
 const FPS: f64 = 30.0;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Kind {
     EmptyRoad,
     Pedestrian4m,
     PedestrianStepsIn,
     CarApproaching,
-    Driving,
-    DrivingToPedestrian,
+    /// Down the empty road at `speed` m/s.
+    Cruise {
+        speed: f64,
+    },
+    /// At `speed` m/s towards a pedestrian standing in the lane centre `from` metres ahead at
+    /// the first frame.
+    Approach {
+        speed: f64,
+        from: f64,
+    },
 }
 
 /// Frame at which the pedestrian of `pedestrian-steps-in` appears.
@@ -28,9 +37,9 @@ const CAR_FROM: f64 = 25.0;
 const CAR_TO: f64 = 5.0;
 /// Speed of the vehicle in `driving`, m/s (29 km/h).
 const DRIVING_SPEED: f64 = 8.0;
-/// `driving-to-pedestrian`: speed, and where the pedestrian stands at the first frame.
-const APPROACH_SPEED: f64 = 5.0;
-const PEDESTRIAN_FROM: f64 = 30.0;
+/// 30 and 40 km/h, the first test speeds of UN R152's pedestrian target.
+const KMH_30: f64 = 30.0 / 3.6;
+const KMH_40: f64 = 40.0 / 3.6;
 
 /// A named, deterministic sequence of scenes.
 #[derive(Debug, Clone, PartialEq)]
@@ -41,7 +50,7 @@ pub struct Scenario {
     frames: u32,
 }
 
-const ALL: [Scenario; 6] = [
+const ALL: [Scenario; 10] = [
     Scenario {
         name: "empty-road",
         description: "Nothing in the lane; roadside walls, poles and trees only.",
@@ -69,14 +78,49 @@ const ALL: [Scenario; 6] = [
     Scenario {
         name: "driving",
         description: "The vehicle drives down the empty road at 8 m/s (29 km/h): road and roadside come towards it, nothing in the lane. Offline replay only (full render each frame).",
-        kind: Kind::Driving,
+        kind: Kind::Cruise {
+            speed: DRIVING_SPEED,
+        },
         frames: 150,
     },
     Scenario {
         name: "driving-to-pedestrian",
         description: "The vehicle drives at 5 m/s towards a pedestrian standing in the lane centre, 30 m ahead at the first frame and 5.2 m at the last. Offline replay only (full render each frame).",
-        kind: Kind::DrivingToPedestrian,
+        kind: Kind::Approach {
+            speed: 5.0,
+            from: 30.0,
+        },
         frames: 150,
+    },
+    Scenario {
+        name: "drive-30",
+        description: "The empty road at 30 km/h (8.33 m/s) for 5 s. Offline replay only.",
+        kind: Kind::Cruise { speed: KMH_30 },
+        frames: 150,
+    },
+    Scenario {
+        name: "drive-40",
+        description: "The empty road at 40 km/h (11.1 m/s) for 5 s. Offline replay only.",
+        kind: Kind::Cruise { speed: KMH_40 },
+        frames: 150,
+    },
+    Scenario {
+        name: "drive-30-to-pedestrian",
+        description: "At 30 km/h towards a pedestrian in the lane centre, 40 m ahead at the first frame and 7 m at the last (4 s); the stopping distance at 30 km/h (0.5 s, 4 m/s^2, 2 m) is 14.9 m. Offline replay only.",
+        kind: Kind::Approach {
+            speed: KMH_30,
+            from: 40.0,
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "drive-40-to-pedestrian",
+        description: "At 40 km/h towards a pedestrian in the lane centre, 50 m ahead at the first frame and 6 m at the last (4 s); the stopping distance at 40 km/h (0.5 s, 4 m/s^2, 2 m) is 23.0 m. Offline replay only.",
+        kind: Kind::Approach {
+            speed: KMH_40,
+            from: 50.0,
+        },
+        frames: 120,
     },
 ];
 
@@ -109,7 +153,7 @@ impl Scenario {
     /// Whether [`crate::CameraRenderer`] keeps up with the frame rate at 640x480: false for the
     /// `driving*` scenarios, whose every frame is a full render (offline replay only).
     pub fn live(&self) -> bool {
-        !matches!(self.kind, Kind::Driving | Kind::DrivingToPedestrian)
+        !matches!(self.kind, Kind::Cruise { .. } | Kind::Approach { .. })
     }
 
     /// The scene at `frame`. Frames past the end hold the last scene, so a consumer that runs
@@ -133,13 +177,10 @@ impl Scenario {
                 let w = f64::from(f) / f64::from(last);
                 Scene::with(vec![Obstacle::car(0.0, CAR_FROM + (CAR_TO - CAR_FROM) * w)])
             }
-            Kind::Driving => Scene::driving(DRIVING_SPEED * seconds(0), vec![]),
-            Kind::DrivingToPedestrian => {
-                let travelled = APPROACH_SPEED * seconds(0);
-                Scene::driving(
-                    travelled,
-                    vec![Obstacle::pedestrian(0.0, PEDESTRIAN_FROM - travelled)],
-                )
+            Kind::Cruise { speed } => Scene::driving(speed * seconds(0), vec![]),
+            Kind::Approach { speed, from } => {
+                let travelled = speed * seconds(0);
+                Scene::driving(travelled, vec![Obstacle::pedestrian(0.0, from - travelled)])
             }
         }
     }
@@ -151,14 +192,13 @@ impl Scenario {
             return 0.0;
         }
         match self.kind {
-            Kind::Driving => DRIVING_SPEED,
-            Kind::DrivingToPedestrian => APPROACH_SPEED,
+            Kind::Cruise { speed } | Kind::Approach { speed, .. } => speed,
             _ => 0.0,
         }
     }
 
     /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): the road is straight
-    /// in every scenario.
+    /// in every scenario (the renderer has no curve yet).
     pub fn yaw_rate_at(&self, _frame: u32) -> f64 {
         0.0
     }
@@ -180,7 +220,7 @@ mod tests {
             let s = Scenario::by_name(name).expect("listed names resolve");
             assert_eq!(s.name(), name);
             assert_eq!(s.fps(), 30.0);
-            assert!(s.frame_count() >= 150);
+            assert!(s.frame_count() >= 120);
         }
         assert!(Scenario::by_name("nope").is_none());
     }
@@ -210,6 +250,8 @@ mod tests {
         assert_eq!(first("car-approaching"), Some(0));
         assert_eq!(first("driving"), None);
         assert_eq!(first("driving-to-pedestrian"), Some(0));
+        // In the lane within the range that counts (IN_LANE_MAX_RANGE) from the first frame.
+        assert!(first("drive-40-to-pedestrian").is_some());
     }
 
     #[test]

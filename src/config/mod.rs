@@ -196,6 +196,8 @@ pub struct VehicleConfig {
     pub motion: MotionInput,
     /// No accepted `VCU_Motion` for this many of its periods: MotionFault.
     pub motion_stale_periods: u32,
+    /// Move the flies with the trusted motion between two frames ([`flyd_core::engine::Engine::predict`]).
+    pub predict_flies: bool,
 }
 
 impl Default for VehicleConfig {
@@ -204,6 +206,7 @@ impl Default for VehicleConfig {
             assumed_speed: 30.0 / 3.6,
             motion: MotionInput::Can,
             motion_stale_periods: 3,
+            predict_flies: true,
         }
     }
 }

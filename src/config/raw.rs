@@ -104,6 +104,7 @@ struct RawVehicle {
     assumed_speed_kmh: f64,
     motion: MotionInput,
     motion_stale_periods: u32,
+    predict_flies: bool,
 }
 
 impl Default for RawVehicle {
@@ -113,6 +114,7 @@ impl Default for RawVehicle {
             assumed_speed_kmh: d.assumed_speed * 3.6,
             motion: d.motion,
             motion_stale_periods: d.motion_stale_periods,
+            predict_flies: d.predict_flies,
         }
     }
 }
@@ -140,6 +142,7 @@ impl RawVehicle {
             assumed_speed: v / 3.6,
             motion: self.motion,
             motion_stale_periods: n,
+            predict_flies: self.predict_flies,
         })
     }
 }

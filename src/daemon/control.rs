@@ -119,6 +119,8 @@ pub struct MotionInputs {
     pub id: u32,
     /// Where its frames come from (`None`: nothing sends them: MotionFault throughout).
     pub rx: Option<Box<dyn CanReceiver>>,
+    /// Where the evolution thread reads the trusted motion (to move the flies with it).
+    pub shared: super::shared_motion::SharedMotion,
 }
 
 /// What the control thread did, for [`super::RunReport`].
@@ -158,6 +160,8 @@ pub struct ControlThread<B: CanBus> {
     pub clock: SharedClock,
     /// The speed the decision assumes while the measured one is not known, m/s.
     pub assumed_speed: f64,
+    /// The cameras' frame period: how long until the next evidence (the decision's latency).
+    pub frame_period: Duration,
     /// The vehicle's motion: its checks, and where its frames come from (`None`: not
     /// configured, `vehicle.motion = "none"`).
     pub motion: Option<MotionInputs>,
@@ -378,9 +382,12 @@ impl<B: CanBus> ControlThread<B> {
     /// What `snapshot` tells the decider, at the speed known now (faults are added when the
     /// command is decided).
     fn input_of(&self, snapshot: &Snapshot) -> DecisionInput {
+        let now = self.clock.now();
+        let age = now.saturating_sub(snapshot.capture_time());
         DecisionInput {
             global_warning: snapshot.global_warning,
-            ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(self.clock.now()))
+            latency: (age + self.frame_period).as_secs_f64(),
+            ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(now))
         }
     }
 
@@ -440,6 +447,7 @@ impl<B: CanBus> ControlThread<B> {
             }
         }
         let status = motion.monitor.status(now);
+        motion.shared.publish(status.motion());
         let fault = status.fault();
         let counters = motion.monitor.counters();
         s.report.motion_accepted = counters.accepted;

@@ -28,6 +28,7 @@ use crossbeam_channel::{Sender, TrySendError};
 use super::clock::SharedClock;
 use super::pairer::{PairOutcome, Pairer, Side};
 use super::ring::FrameReader;
+use super::shared_motion::SharedMotion;
 use super::snapshot::Snapshot;
 use super::threads::Shutdown;
 use crate::config::EvolutionConfig;
@@ -63,6 +64,9 @@ pub struct EvolutionThread {
     pub road_source: Option<RoadSource>,
     /// Debounces each new pair's image health into sensor faults.
     pub sensor: SensorMonitor,
+    /// The vehicle's trusted motion: each new pair's flies are first moved with it over the
+    /// time since the previous pair (`None`: `vehicle.predict_flies = false`).
+    pub motion: Option<SharedMotion>,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -82,6 +86,12 @@ impl EvolutionThread {
         let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
             if let Some((l, r, health)) = self.take_pair() {
+                if let (Some((previous, _)), Some(motion)) =
+                    (pair, self.motion.as_ref().and_then(SharedMotion::get))
+                {
+                    let dt = l.timestamp.saturating_sub(previous.timestamp);
+                    self.perception.predict(motion, dt.as_secs_f64());
+                }
                 pair = Some((l, r));
                 let next = self.sensor.observe(&health[0], &health[1]);
                 log_sensor(&verdict, &next, &health);

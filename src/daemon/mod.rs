@@ -41,6 +41,7 @@ pub mod mock_vehicle;
 pub mod notify;
 pub mod pairer;
 pub mod ring;
+pub mod shared_motion;
 pub mod snapshot;
 pub mod stats;
 pub mod threads;
@@ -251,6 +252,7 @@ pub fn run(
         right_writer.counters().clone(),
     ];
     let evolution_counters = Arc::new(EvolutionCounters::default());
+    let motion = shared_motion::SharedMotion::default();
     // At least a frame period, at most 250 ms (a stop request is seen within that).
     let max_poll = Duration::from_millis(250);
     let poll_timeout = config
@@ -302,6 +304,7 @@ pub fn run(
         stop: stop.clone(),
         road_source: None,
         sensor: SensorMonitor::new(config.sensor),
+        motion: config.vehicle.predict_flies.then(|| motion.clone()),
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
@@ -334,10 +337,12 @@ pub fn run(
         clock: clock.clone(),
         can_silence: config.control.can_silence,
         assumed_speed: config.vehicle.assumed_speed,
+        frame_period: config.cameras.frame_period(),
         motion: config.motion().map(|m| MotionInputs {
             monitor: MotionMonitor::new(m),
             id: config.can.messages.motion.id,
             rx: can.rx,
+            shared: motion.clone(),
         }),
         can: config.can.messages,
         stats_interval: config.logging.stats_interval,

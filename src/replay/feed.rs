@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use flyd_core::calib::Calibration;
 use flyd_core::frame::{PixelFormat, StereoFrame};
 use flyd_core::geometry::StereoRig;
+use flyd_core::motion::VehicleMotion;
 use image::RgbImage;
 
 use super::{ReplayError, load_rgb};
@@ -35,6 +36,11 @@ pub trait FrameFeed {
     /// The name of frame `index` (its left file, for a sequence).
     fn frame_name(&self, index: u64) -> String {
         index.to_string()
+    }
+    /// The vehicle's motion from frame `index` to the next, when the feed knows it (a
+    /// scenario's own speed, as its VCU would send it).
+    fn motion(&self, _index: u64) -> Option<VehicleMotion> {
+        None
     }
 }
 
@@ -161,6 +167,15 @@ impl FrameFeed for ScenarioFeed {
 
     fn first_obstacle(&self) -> Option<u64> {
         self.first_obstacle
+    }
+
+    fn motion(&self, index: u64) -> Option<VehicleMotion> {
+        let s = self.mock.scenario();
+        let f = u32::try_from(index).unwrap_or(u32::MAX);
+        Some(VehicleMotion {
+            speed: s.speed_at(f),
+            yaw_rate: s.yaw_rate_at(f),
+        })
     }
 }
 

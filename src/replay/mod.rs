@@ -112,8 +112,12 @@ pub struct Settings {
     pub params: EngineParams,
     pub perception: PerceptionConfig,
     pub decision: DecisionConfig,
-    /// The vehicle's speed the decision assumes, m/s.
+    /// The vehicle's speed the decision assumes where the feed does not know it, m/s.
     pub speed: f64,
+    /// `speed` holds on every frame (`--speed` given), even where the feed knows its motion.
+    pub fixed_speed: bool,
+    /// Move the flies with the feed's motion between frames ([`Perception::predict`]).
+    pub predict: bool,
     /// Generations to run.
     pub generations: u64,
     /// Generations per frame.
@@ -155,6 +159,8 @@ pub struct TraceRow {
     pub corridor: CorridorCounts,
     pub command: Command,
     pub reason: CommandReason,
+    /// The speed the decision took, m/s.
+    pub speed: f64,
     /// Wall time of the whole step (both engines and the perception stage).
     pub elapsed: Duration,
     /// Of which the road fit and the obstacle stage.
@@ -175,6 +181,8 @@ pub struct Replay {
     pub left: RgbImage,
     /// Frames shown.
     pub frames: u64,
+    /// The feed knew its motion.
+    pub moving_feed: bool,
 }
 
 impl Replay {
@@ -213,6 +221,11 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
     for g in 0..settings.generations {
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
         if index != Some(wanted) {
+            if let (Some(previous), true) = (index, settings.predict)
+                && let Some(motion) = feed.motion(previous)
+            {
+                perception.predict(motion, (wanted - previous) as f64 / fps);
+            }
             feed.load(wanted, &mut frame, &mut left)?;
             frame.id = wanted;
             index = Some(wanted);
@@ -233,6 +246,10 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
         let observed = Instant::now();
         let report = *perception.observe(&frame)?;
         let (elapsed, stage) = (t.elapsed(), observed.elapsed());
+        let speed = match feed.motion(wanted) {
+            Some(m) if !settings.fixed_speed => m.speed.max(0.0),
+            _ => settings.speed,
+        };
         let decision = if report.stats.generation > settings.warmup_generations {
             let input = DecisionInput {
                 global_warning: report.stats.global_warning,
@@ -242,7 +259,9 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
                 } else {
                     FaultBits::CAMERA_ERROR
                 },
-                ..DecisionInput::at_speed(None, settings.speed)
+                // The evidence's age on the frames' clock, and a frame until the next.
+                latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
+                ..DecisionInput::at_speed(None, speed)
             };
             Some(decider.update(input, time))
         } else {
@@ -258,6 +277,7 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
             corridor: report.corridor,
             command: decision.map_or(decider.command(), |d| d.command),
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
+            speed,
             elapsed,
             stage,
             health,
@@ -272,6 +292,7 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
         trace,
         left,
         frames: index.map_or(0, |i| i + 1),
+        moving_feed: feed.motion(0).is_some(),
     })
 }
 
@@ -352,6 +373,7 @@ mod tests {
                     seen_frames: 0,
                 },
                 corridor: CorridorCounts::default(),
+                speed: 0.0,
                 command: if w >= 1.5 {
                     Command::Stop
                 } else {

@@ -136,7 +136,13 @@ pub struct Summary {
     pub out_dir: String,
     /// The decision: its mode and the speed it assumed.
     pub decision_mode: String,
+    /// The speed decided at where the feed does not give one (`--speed`, else the assumed).
     pub speed_kmh: f64,
+    /// "fixed" (`--speed`: on every frame), "feed" (a scenario's own speed; `speed_kmh`
+    /// unused) or "assumed".
+    pub speed_source: &'static str,
+    /// The flies were moved with the feed's motion between frames.
+    pub predict_flies: bool,
     /// The state after the last generation.
     #[serde(flatten)]
     pub last: FrameReport,
@@ -192,6 +198,14 @@ impl Summary {
             out_dir: out.display().to_string(),
             decision_mode: replay.settings.decision.mode.to_string(),
             speed_kmh: replay.settings.speed * 3.6,
+            speed_source: if replay.settings.fixed_speed {
+                "fixed"
+            } else if replay.moving_feed {
+                "feed"
+            } else {
+                "assumed"
+            },
+            predict_flies: replay.settings.predict && replay.moving_feed,
             last,
             warmup_generations: replay.settings.warmup_generations,
             alarms: Alarms::of(&replay.trace, replay.settings.warmup_generations),

@@ -8,8 +8,11 @@
 //!   ([`crate::perception`]), at distance `d` metres, and the vehicle's speed `v` (m/s). A
 //!   command's *reach* is the distance the vehicle needs to stop with that command's
 //!   deceleration: `v reaction_time + v^2 / (2 decel) + margin` (Autoware's AEB and RSS use the
-//!   same form). The level is STOP if `d <= reach(STOP)`, SLOW if `d <= reach(SLOW)`, else
-//!   CLEAR; no obstacle is CLEAR. At 30 km/h with the defaults (0.5 s, 2 m, 4 and 1.5 m/s^2):
+//!   same form). The obstacle is taken where it will be when the next evidence can change the
+//!   command: `d' = d - v latency`, the latency being the evidence's age plus a frame period
+//!   ([`DecisionInput::latency`]): a STOP decided on the next frame would come a frame's
+//!   travel too late. The level is STOP if `d' <= reach(STOP)`, SLOW if `d' <= reach(SLOW)`,
+//!   else CLEAR; no obstacle is CLEAR. At 30 km/h with the defaults (0.5 s, 2 m, 4 and 1.5 m/s^2):
 //!   STOP within 14.9 m, SLOW within 29.3 m.
 //! - **`global-warning`**: the paper's rule. `w` the global warning (the mean fly warning),
 //!   STOP if `w >= stop_threshold`, SLOW if `w >= slow_threshold`. Its scale follows the images'
@@ -260,6 +263,11 @@ pub struct DecisionInput {
     pub obstacle: Option<f64>,
     /// The vehicle's speed, m/s (`obstacle` mode; NaN or negative is a fault there).
     pub speed: f64,
+    /// `obstacle` mode: seconds the vehicle drives before the next evidence can change the
+    /// command: the age of this evidence (from its frame's capture) plus a frame period. The
+    /// obstacle is taken that much nearer, `d - v latency` (NaN, infinite or negative is a
+    /// fault there).
+    pub latency: f64,
     /// Active faults; those in [`DecisionConfig::fault_mask`] make perception untrusted.
     pub faults: FaultBits,
 }
@@ -271,6 +279,7 @@ impl DecisionInput {
             global_warning,
             obstacle: None,
             speed: 0.0,
+            latency: 0.0,
             faults: FaultBits::empty(),
         }
     }
@@ -310,6 +319,7 @@ impl DecisionInput {
             global_warning: high(self.global_warning, other.global_warning),
             obstacle,
             speed: high(self.speed, other.speed),
+            latency: high(self.latency, other.latency),
             faults: self.faults | other.faults,
         }
     }
@@ -460,8 +470,8 @@ impl Decider {
                 })
             }
             DecisionMode::Obstacle => {
-                let v = input.speed;
-                if !valid(v) {
+                let (v, latency) = (input.speed, input.latency);
+                if !(valid(v) && valid(latency)) {
                     return None;
                 }
                 match input.obstacle {
@@ -472,6 +482,8 @@ impl Decider {
                     // +inf is a valid "nothing within range".
                     Some(d) if d.is_nan() || d < 0.0 => None,
                     Some(d) => {
+                        // Where the obstacle will be when the next evidence can act.
+                        let d = d - v * latency;
                         let ratio = |command| {
                             let reach = c.reach(command, v);
                             if d > 0.0 { reach / d } else { f64::INFINITY }
@@ -1022,6 +1034,41 @@ mod tests {
         assert!((c.reach(Slow, KMH30) - 29.3148).abs() < 1e-3);
         assert_eq!(c.reach(Stop, 0.0), c.margin);
         assert_eq!(c.reach(Clear, KMH30), 0.0);
+    }
+
+    #[test]
+    fn the_obstacle_is_judged_where_it_will_be_when_the_next_evidence_comes() {
+        let c = DecisionConfig::default();
+        let d = Decider::new(c).expect("valid");
+        // 15.2 m ahead at 30 km/h: beyond STOP's 14.85 m now, within it after 50 ms of
+        // evidence age and a 33 ms frame (0.69 m nearer).
+        let now = DecisionInput::at_speed(Some(15.2), KMH30);
+        assert_eq!(d.level(&now), Slow);
+        let later = DecisionInput {
+            latency: 0.083,
+            ..now
+        };
+        assert_eq!(d.level(&later), Stop);
+        // Standing still, latency changes nothing.
+        let still = DecisionInput {
+            latency: 10.0,
+            ..DecisionInput::at_speed(Some(2.5), 0.0)
+        };
+        assert_eq!(d.level(&still), Clear);
+        for bad in [f64::NAN, -0.1, f64::INFINITY] {
+            let input = DecisionInput {
+                latency: bad,
+                ..now
+            };
+            assert_eq!(d.level(&input), Clear, "latency {bad}: a fault, no level");
+            assert!(d.clone().update(input, Duration::ZERO).fault);
+        }
+        // Nearer than the travel within the latency: STOP.
+        let passed = DecisionInput {
+            latency: 1.0,
+            ..DecisionInput::at_speed(Some(5.0), KMH30)
+        };
+        assert_eq!(d.level(&passed), Stop);
     }
 
     /// Runs (ms, obstacle distance) at 30 km/h through an obstacle-mode decider, warmed up

@@ -79,6 +79,7 @@ pub use uniqueness::SHIFTS as AMBIGUITY_SHIFTS;
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
 use crate::isa::{Isa, dispatch};
+use crate::motion::VehicleMotion;
 use crate::road::RoadPlane;
 use breeding::Breeder;
 use change::ChangeMap;
@@ -324,6 +325,40 @@ impl Engine {
     pub fn set_road(&mut self, road: RoadPlane) {
         self.road = road;
         self.setup.sampler.road = road.coefficients();
+    }
+
+    /// Moves every fly where the vehicle's own motion puts it: a static point seen at `p` is,
+    /// `dt` seconds later, at `R(-yaw) (p - t)` in the new vehicle frame, the vehicle having
+    /// driven `speed dt` along an arc turning `yaw_rate dt` (chord at half the turn; about the
+    /// vehicle frame's origin). Call it between two frames, before the next [`Engine::step`]:
+    /// the flies on static surfaces land on them again in the new images (their re-evaluation
+    /// keeps them), and only what moved in the world must be found again. No motion (or a
+    /// non-finite one) leaves the population untouched, bit for bit.
+    ///
+    /// Only every other fly (even index) is moved; the others stay where they were. The world
+    /// is not all static: a car ahead driving at the vehicle's speed stays where it was in the
+    /// vehicle frame, and a motion that does not fit the images (a wrong speed on the bus)
+    /// would otherwise move every fly off what it found. Selection keeps whichever of the two
+    /// hypotheses the new images confirm.
+    pub fn predict(&mut self, motion: VehicleMotion, dt: f64) {
+        let travelled = motion.speed * dt;
+        let turned = motion.yaw_rate * dt;
+        if !(travelled.is_finite() && turned.is_finite()) || (travelled == 0.0 && turned == 0.0) {
+            return;
+        }
+        let (half_sin, half_cos) = (0.5 * turned).sin_cos();
+        let (tx, tz) = (
+            (-travelled * half_sin) as f32,
+            (travelled * half_cos) as f32,
+        );
+        let (sin, cos) = turned.sin_cos();
+        let (sin, cos) = (sin as f32, cos as f32);
+        let p = &mut self.pop;
+        for (x, z) in p.x.iter_mut().zip(p.z.iter_mut()).step_by(2) {
+            let (qx, qz) = (*x - tx, *z - tz);
+            *x = qx * cos + qz * sin;
+            *z = qz * cos - qx * sin;
+        }
     }
 
     /// Runs one generation against `frame` (see the module docs for the steps).

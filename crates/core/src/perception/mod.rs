@@ -167,6 +167,12 @@ impl Perception {
         &self.report
     }
 
+    /// Moves the flies with the vehicle's motion over `dt` seconds, between two frames
+    /// ([`Engine::predict`]).
+    pub fn predict(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
+        self.engine.predict(motion, dt);
+    }
+
     /// One generation on `frame`, then the road and obstacle stages
     /// ([`Perception::evolve`] then [`Perception::observe`]; see the module docs).
     pub fn step(&mut self, frame: &StereoFrame) -> Result<&PerceptionReport, EngineError> {
