@@ -1,6 +1,8 @@
 //! `flyd bench`: timing of the engine on a synthetic scene, one thread.
 //!
-//! The scene is hw-mock's `pedestrian-4m` rendered through the mock rig. Two frames with
+//! The scene is hw-mock's `pedestrian-4m` rendered through the mock rig (or, with
+//! `--scenario`, a scenario's first frames played in order, the flies moved with its motion
+//! between frames). Two frames with
 //! different sensor noise alternate every `generations_per_frame` generations, so the figures
 //! include the full re-evaluation a new frame costs, in the proportion the daemon sees it
 //! (a pair every 3 generations at 30 fps and ~10 ms a generation). Frames are rendered and
@@ -29,11 +31,23 @@ pub struct GenerationBench {
     pub isa: Option<Isa>,
     /// The perception stages timed after each generation.
     pub perception: PerceptionConfig,
+    /// A hw-mock scenario whose frames are played in order instead (its first
+    /// [`SCENARIO_FRAMES`], looped), the flies moved with its own motion between frames
+    /// when `predict`.
+    pub scenario: Option<String>,
+    pub predict: bool,
 }
+
+/// Frames of a scenario the benchmark renders (2 s at 30 fps).
+pub const SCENARIO_FRAMES: u32 = 60;
 
 /// Timing of generations, microseconds.
 #[derive(Debug, Clone, Serialize)]
 pub struct GenerationReport {
+    /// The scene: `pedestrian-4m` (two noise draws alternating), or a scenario played in order.
+    pub scene: String,
+    /// The flies were moved with the scenario's motion between frames.
+    pub predict: bool,
     pub flies: usize,
     pub width: u32,
     pub height: u32,
@@ -49,6 +63,9 @@ pub struct GenerationReport {
     pub same_frame: Timing,
     /// Flies evaluated per second over the run.
     pub flies_per_second: f64,
+    /// Mean change evidence on the new frames (the engine's `change`: what draws guided
+    /// immigrants; 0 on a still scene).
+    pub change_mean: f64,
     /// The obstacle stage after each generation ([`Perception::find_obstacle`]).
     pub obstacle: Timing,
     /// Its total time over the generations' total: what it adds to a generation.
@@ -67,7 +84,13 @@ impl std::fmt::Display for GenerationReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{} flies, {}x{}, {} generations, a new frame every {}, {}",
+            "{} ({}), {} flies, {}x{}, {} generations, a new frame every {}, {}",
+            self.scene,
+            if self.predict {
+                "flies moved with the vehicle"
+            } else {
+                "flies not moved"
+            },
             self.flies,
             self.width,
             self.height,
@@ -118,7 +141,7 @@ impl std::fmt::Display for GenerationReport {
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
     #[error("hw-mock has no {0} scenario")]
-    NoScenario(&'static str),
+    NoScenario(String),
     #[error("the benchmark scene")]
     Mock(#[from] crate::mock::MockError),
     #[error("the benchmark frames")]
@@ -134,10 +157,25 @@ const SCENE: &str = "pedestrian-4m";
 
 /// Runs the benchmark (renders the scene first; that is not timed).
 pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError> {
-    let scenario = hw_mock::Scenario::by_name(SCENE).ok_or(BenchError::NoScenario(SCENE))?;
+    let name = cfg.scenario.as_deref().unwrap_or(SCENE);
+    let scenario =
+        hw_mock::Scenario::by_name(name).ok_or_else(|| BenchError::NoScenario(name.into()))?;
+    let played = cfg.scenario.is_some();
+    let count = if played {
+        SCENARIO_FRAMES.min(scenario.frame_count())
+    } else {
+        2
+    };
+    let fps = scenario.fps();
+    let motions: Vec<_> = (0..count)
+        .map(|f| flyd_core::motion::VehicleMotion {
+            speed: scenario.speed_at(f),
+            yaw_rate: scenario.yaw_rate_at(f),
+        })
+        .collect();
     let mut mock = MockStereo::new(scenario, cfg.width, cfg.height)?;
     let mut frames = Vec::new();
-    for index in 0..2u32 {
+    for index in 0..count {
         let (l, r) = mock.frame(index)?;
         frames.push(StereoFrame::new(
             PreparedImage::from_pixels(cfg.width, cfg.height, PixelFormat::Rgb8, l)?,
@@ -158,6 +196,7 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
     let (mut all, mut new, mut same) = (Vec::new(), Vec::new(), Vec::new());
     let (mut obstacle, mut road) = (Vec::new(), Vec::new());
     let mut evaluated = 0usize;
+    let mut change_sum = 0.0;
     let (mut total, mut obstacle_total, mut road_total) =
         (Duration::ZERO, Duration::ZERO, Duration::ZERO);
     let mut phases: Vec<Vec<Duration>> = vec![Vec::new(); phase::Phase::ALL.len()];
@@ -165,7 +204,14 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
         if g == warmup {
             phase::take();
         }
-        let frame = &frames[((g / k) % 2) as usize];
+        let index = ((g / k) % u64::from(count)) as usize;
+        let frame = &frames[index];
+        if played && g % k == 0 && g > 0 && cfg.predict {
+            // Looping back to the first frame is a jump no vehicle makes: not predicted.
+            if index > 0 {
+                perception.predict(motions[index - 1], 1.0 / fps);
+            }
+        }
         let t = Instant::now();
         let stats = perception.evolve(frame)?;
         let dt = t.elapsed();
@@ -191,6 +237,7 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
                 }
             }
             if stats.new_frame {
+                change_sum += f64::from(stats.change);
                 new.push(dt);
             } else {
                 same.push(dt);
@@ -205,6 +252,8 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
             .collect()
     });
     Ok(GenerationReport {
+        scene: name.to_string(),
+        predict: played && cfg.predict,
         flies: cfg.flies,
         width: cfg.width,
         height: cfg.height,
@@ -215,6 +264,7 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
         new_frame: Timing::of(&mut new),
         same_frame: Timing::of(&mut same),
         flies_per_second: evaluated as f64 / total.as_secs_f64().max(1e-9),
+        change_mean: change_sum / new.len().max(1) as f64,
         obstacle: Timing::of(&mut obstacle),
         obstacle_share: obstacle_total.as_secs_f64() / total.as_secs_f64().max(1e-9),
         road: Timing::of(&mut road),

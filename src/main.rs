@@ -65,6 +65,13 @@ struct BenchArgs {
     /// Take [perception] from this daemon configuration (default: the built-in defaults).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Play this hw-mock scenario's first 60 frames in order (e.g. `driving`) instead of two
+    /// noise draws of `pedestrian-4m`, the flies moved with the scenario's own motion.
+    #[arg(long)]
+    scenario: Option<String>,
+    /// With --scenario: do not move the flies with the vehicle's motion.
+    #[arg(long)]
+    no_predict: bool,
     /// Instead: reaction time of the whole threaded daemon on hw-mock (config/demo.toml), from
     /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
     #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
@@ -301,6 +308,8 @@ fn bench_command(args: BenchArgs) -> Result<()> {
             Some(path) => config::check(path)?.perception,
             None => flyd_core::perception::PerceptionConfig::default(),
         },
+        scenario: args.scenario.clone(),
+        predict: !args.no_predict,
     })?;
     if args.json {
         say!("{}", serde_json::to_string_pretty(&report)?)?;

@@ -880,7 +880,7 @@ fn predict_moves_flies_as_the_vehicle_moves() {
         xyz(&before),
         "no finite motion: untouched"
     );
-    // Straight ahead: every other fly 1 m nearer, nothing else moves.
+    // Straight ahead: three flies in four 1 m nearer, nothing else moves.
     e.predict(
         VehicleMotion {
             speed: 10.0,
@@ -891,7 +891,7 @@ fn predict_moves_flies_as_the_vehicle_moves() {
     let p = e.population();
     for i in 0..p.len() {
         assert_eq!((p.x[i], p.y[i]), (before.x[i], before.y[i]));
-        let moved = if i % 2 == 0 { 1.0 } else { 0.0 };
+        let moved = if i % 4 == 3 { 0.0 } else { 1.0 };
         assert!((p.z[i] - (before.z[i] - moved)).abs() < 1e-5);
     }
     // Turning left on the spot: what was ahead is now to the right, at the same distance.
@@ -948,7 +948,8 @@ fn predicted_flies_stay_on_the_wall_the_vehicle_drives_towards() {
 #[test]
 fn a_wall_that_moves_with_the_vehicle_keeps_its_flies_when_they_are_predicted() {
     // A lead vehicle at the vehicle's own speed, or a speed on the bus that does not fit the
-    // images: the world stayed where it was. Half the flies were not moved, and they are found
+    // images: the world stayed where it was. A quarter of the flies were not moved, and they are
+    // found
     // fit again at once.
     let rig = rig();
     let (first, again) = (wall_frame(&rig, 5.0, 3, 1), wall_frame(&rig, 5.0, 3, 2));
@@ -971,7 +972,7 @@ fn a_wall_that_moves_with_the_vehicle_keeps_its_flies_when_they_are_predicted() 
         .filter(|&&i| (130.0 * 0.3 / f64::from(p.z[i]) - 7.8).abs() <= 0.5)
         .count();
     assert!(
-        on_wall >= 140,
+        on_wall >= 120,
         "{on_wall} of the 200 best flies still on the wall"
     );
 }
