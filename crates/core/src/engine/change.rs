@@ -182,13 +182,7 @@ impl EgoFlow {
         project: impl Fn(f32, f32, f32) -> Option<(f32, f32)>,
     ) -> &[f32] {
         let [height, slope_z, slope_x] = road;
-        let (half_sin, half_cos) = (0.5 * turned).sin_cos();
-        let (tx, tz) = (
-            (-travelled * half_sin) as f32,
-            (travelled * half_cos) as f32,
-        );
-        let (sin, cos) = turned.sin_cos();
-        let (sin, cos) = (sin as f32, cos as f32);
+        let ego = crate::motion::EgoTransform::new(travelled, turned);
         let block = BLOCK as f32;
         for (out, ray) in self.predicted.iter_mut().zip(&self.rays) {
             *out = f32::NAN;
@@ -203,8 +197,7 @@ impl EgoFlow {
                 continue;
             }
             // The inverse of Engine::predict: where this point of the road was.
-            let (qx, qz) = (x * cos - z * sin, x * sin + z * cos);
-            let (px, pz) = (qx + tx, qz + tz);
+            let (px, pz) = ego.invert(x, z);
             if let Some((u, v)) = project(px, y, pz) {
                 *out = map
                     .previous_at((u + 0.5) / block - 0.5, (v + 0.5) / block - 0.5)

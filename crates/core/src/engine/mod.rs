@@ -80,7 +80,7 @@ pub use uniqueness::SHIFTS as AMBIGUITY_SHIFTS;
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
 use crate::isa::{Isa, dispatch};
-use crate::motion::VehicleMotion;
+use crate::motion::{EgoTransform, VehicleMotion};
 use crate::road::RoadPlane;
 use breeding::Breeder;
 use change::{ChangeMap, EgoFlow};
@@ -360,13 +360,7 @@ impl Engine {
         if !(travelled.is_finite() && turned.is_finite()) || (travelled == 0.0 && turned == 0.0) {
             return;
         }
-        let (half_sin, half_cos) = (0.5 * turned).sin_cos();
-        let (tx, tz) = (
-            (-travelled * half_sin) as f32,
-            (travelled * half_cos) as f32,
-        );
-        let (sin, cos) = turned.sin_cos();
-        let (sin, cos) = (sin as f32, cos as f32);
+        let ego = EgoTransform::new(travelled, turned);
         let (d0, t0) = self.pending_motion.unwrap_or((0.0, 0.0));
         self.pending_motion = Some((d0 + travelled, t0 + turned));
         let p = &mut self.pop;
@@ -374,9 +368,7 @@ impl Engine {
             if i % STAY_EVERY == STAY_EVERY - 1 {
                 continue;
             }
-            let (qx, qz) = (*x - tx, *z - tz);
-            *x = qx * cos + qz * sin;
-            *z = qz * cos - qx * sin;
+            (*x, *z) = ego.apply(*x, *z);
         }
     }
 

@@ -236,6 +236,37 @@ impl Engine {
         Ok(())
     }
 
+    /// The paper's fitness (no region of interest) of vehicle-frame `points` on `frame` (the
+    /// frame of the latest [`Engine::step`]) into `out`, at most [`Engine::sweep_capacity`] of
+    /// them; returns how many. For measurements (where a predicted point matches best); the
+    /// population is not touched.
+    pub fn evaluate_points(
+        &mut self,
+        frame: &StereoFrame,
+        points: &[[f32; 3]],
+        out: &mut [f32],
+    ) -> Result<usize, EngineError> {
+        self.check_frame(frame)?;
+        let s = &mut self.sweeps;
+        let n = points.len().min(out.len()).min(s.capacity());
+        for (k, p) in points[..n].iter().enumerate() {
+            (s.batch.x[k], s.batch.y[k], s.batch.z[k]) = (p[0], p[1], p[2]);
+        }
+        let kernel = Kernel::new(frame, &self.setup.params, &RoadPlane::FLAT).without_roi();
+        let (left, right, grid) = (&self.setup.left, &self.setup.right, &self.sharing);
+        kernel.evaluate(
+            self.isa,
+            left,
+            right,
+            &mut s.batch,
+            0..n,
+            grid,
+            &mut self.scratch,
+        );
+        out[..n].copy_from_slice(&s.batch.raw_fitness[..n]);
+        Ok(n)
+    }
+
     /// Probes one [`Engine::sweep`] evaluates at once, at most.
     pub fn sweep_capacity(&self) -> usize {
         self.sweeps.capacity()
