@@ -137,7 +137,7 @@ fn driving_towards_a_pedestrian_ends_in_a_stop() {
 /// At 30 km/h towards a pedestrian, the scenario's own speed (what its VCU would send), the
 /// flies moved with it between frames: the first STOP (PERCEPTION) comes while the pedestrian
 /// is still beyond the stopping distance at that speed (0.5 s, 4 m/s^2, 2 m: 14.85 m), and
-/// the first SLOW beyond that. Measured over seeds 1-10: STOP at 15.28 m on each
+/// the first SLOW beyond that. Measured over seeds 1-10: STOP at 15.0-15.6 m
 /// (docs/perception.md).
 #[test]
 fn driving_at_30_kmh_towards_a_pedestrian_stops_before_the_stopping_distance() {
