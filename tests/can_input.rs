@@ -43,6 +43,11 @@ fn config(dir: &Path, scenario: &str) -> PathBuf {
 
 /// Runs flyd for `seconds` and decodes what it sent.
 fn run(config: &Path, input: Option<&Path>, seconds: f64) -> Vec<Frame> {
+    run_logged(config, input, seconds).0
+}
+
+/// [`run`], and flyd's log (stderr: the CAN log is the file).
+fn run_logged(config: &Path, input: Option<&Path>, seconds: f64) -> (Vec<Frame>, String) {
     let dir = config.parent().expect("dir");
     let log = dir.join("sent.log");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_flyd"));
@@ -63,7 +68,12 @@ fn run(config: &Path, input: Option<&Path>, seconds: f64) -> Vec<Frame> {
     let text = std::fs::read_to_string(&log).expect("CAN log");
     let frames = Decoder::new().decode_log(&text);
     assert!(frames.iter().all(|f| f.crc_ok), "every frame's CRC holds");
-    frames
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (frames, log)
 }
 
 /// (seconds since the first frame, value).
@@ -112,6 +122,10 @@ fn the_parked_mock_vehicle_reports_standstill_and_flyd_does_not_brake_for_what_i
 /// A drive's bus as candump recorded it: `VCU_Motion` at 20 ms, 30 km/h for `seconds`, then
 /// nothing (the VCU went silent); a few bad frames among the good ones.
 fn recorded_drive(path: &Path, seconds: f64) {
+    recorded_drive_at(path, seconds, 30.0 / 3.6);
+}
+
+fn recorded_drive_at(path: &Path, seconds: f64, speed: f64) {
     let mut text = String::new();
     let mut counter = AliveCounter::ZERO;
     let t0 = Duration::from_secs(1_764_000_000);
@@ -121,7 +135,7 @@ fn recorded_drive(path: &Path, seconds: f64) {
         let t = t0 + ms(20 * u64::from(k));
         let msg = MotionMsg {
             valid: true,
-            speed: 30.0 / 3.6,
+            speed,
             yaw_rate: 0.0,
         };
         let data = msg.encode(counter.advance());
@@ -178,4 +192,21 @@ fn a_recorded_drive_at_30_kmh_stops_for_the_pedestrian_and_its_silence_is_a_moti
         !stops.is_empty() && stops.iter().all(|(_, c)| c == "STOP"),
         "{commands:?}"
     );
+}
+
+/// At 80 km/h the SLOW distance (2 m + 11.1 m + 164.6 m) lies far beyond the 40 m flyd
+/// searches: said in the log, and the decision still at the measured speed (STOP 4 m before
+/// the pedestrian). At 30 km/h (29.3 m) nothing is said.
+#[test]
+fn a_speed_beyond_what_flyd_sees_in_time_is_logged() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = config(dir.path(), "pedestrian-4m");
+    let warning = "speed beyond what flyd sees in time";
+    let input = dir.path().join("fast.log");
+    recorded_drive_at(&input, 2.0, 80.0 / 3.6);
+    let (_, log) = run_logged(&config, Some(&input), 1.5);
+    assert!(log.contains(warning), "{log}");
+    recorded_drive_at(&input, 2.0, 30.0 / 3.6);
+    let (_, log) = run_logged(&config, Some(&input), 1.5);
+    assert!(!log.contains(warning), "{log}");
 }

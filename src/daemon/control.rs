@@ -162,6 +162,10 @@ pub struct ControlThread<B: CanBus> {
     pub assumed_speed: f64,
     /// The cameras' frame period: how long until the next evidence (the decision's latency).
     pub frame_period: Duration,
+    /// How far ahead obstacles are searched and seen, m (the least of the depth range, the
+    /// region of interest and the obstacle range): a speed whose SLOW distance exceeds it is
+    /// logged as beyond what flyd sees in time.
+    pub range: f64,
     /// The vehicle's motion: its checks, and where its frames come from (`None`: not
     /// configured, `vehicle.motion = "none"`).
     pub motion: Option<MotionInputs>,
@@ -190,6 +194,8 @@ struct Loop {
     /// Whether the motion was known once (its loss is then logged as a warning).
     motion_known_once: bool,
     rx_failing: bool,
+    /// The speed's SLOW distance is beyond `range` (logged once per episode).
+    beyond_range: bool,
     /// When a frame last went out (any message).
     last_sent_at: Option<Duration>,
     state: State,
@@ -219,6 +225,7 @@ impl<B: CanBus> ControlThread<B> {
             motion_fault: self.motion.as_ref().map(|_| MotionFault::Missing),
             motion_known_once: false,
             rx_failing: false,
+            beyond_range: false,
             last_sent_at: None,
             state: State::Init,
             command: self.decider.command(),
@@ -477,6 +484,27 @@ impl<B: CanBus> ControlThread<B> {
                 (None, None) => {}
             }
             s.motion_fault = fault;
+        }
+        let speed = self.speed(now);
+        let reach = self.decider.config().reach(Command::Slow, speed);
+        let beyond = reach > self.range;
+        if beyond != s.beyond_range {
+            if beyond {
+                tracing::warn!(
+                    speed_kmh = speed * 3.6,
+                    slow_distance_m = reach,
+                    range_m = self.range,
+                    "speed beyond what flyd sees in time: the SLOW distance exceeds the range \
+                     searched for obstacles (vehicle.assumed_speed_kmh is the highest speed \
+                     the configuration was checked for)"
+                );
+            } else {
+                tracing::info!(
+                    speed_kmh = speed * 3.6,
+                    "speed within the range searched again"
+                );
+            }
+            s.beyond_range = beyond;
         }
     }
 

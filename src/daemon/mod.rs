@@ -338,6 +338,11 @@ pub fn run(
         can_silence: config.control.can_silence,
         assumed_speed: config.vehicle.assumed_speed,
         frame_period: config.cameras.frame_period(),
+        range: config
+            .engine
+            .max_depth
+            .min(config.engine.roi.map_or(f64::INFINITY, |r| r.max_ahead))
+            .min(config.perception.obstacle.max_distance),
         motion: config.motion().map(|m| MotionInputs {
             monitor: MotionMonitor::new(m),
             id: config.can.messages.motion.id,
