@@ -107,7 +107,9 @@ struct ReplayArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
-    /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian.
+    /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian, drive-30, drive-40,
+    /// drive-30-to-pedestrian, drive-40-to-pedestrian (the moving ones decided at their own
+    /// speed, the flies moved with it).
     #[arg(long)]
     scenario: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
