@@ -1116,19 +1116,32 @@ fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it
         .expect("flyd RUNNING")
         .time;
 
-    // Before the first frame: no motion, MotionFault, STOP at the assumed 30 km/h.
+    // Before the first frame: no motion, MotionFault, and STOP at the assumed 30 km/h once the
+    // pedestrian (there from the start) is confirmed: under TCG that took up to ~3 s after
+    // RUNNING, which is why canplayer starts at feeder frame 40.
     let before = window(running, first);
     assert!(
         !before.is_empty() && before.iter().all(fault),
         "{}",
         label_counts(&before, "MotionFault")
     );
+    let confirmed = r
+        .messages("FLYD_Obstacle")
+        .into_iter()
+        .find(|f| f.time > running && f.label("ObstacleConfirmed") == "CONFIRMED")
+        .map(|f| f.time)
+        .expect("the pedestrian confirmed");
     assert!(
-        commands(running + 1.0, first)
+        confirmed < first - 0.5,
+        "confirmed {:.1} s after RUNNING only",
+        confirmed - running
+    );
+    assert!(
+        commands(confirmed + 0.1, first)
             .iter()
             .all(|c| c.label("Command") == "STOP"),
         "STOP at the assumed speed: {}",
-        label_counts(&commands(running, first), "Command")
+        label_counts(&commands(confirmed, first), "Command")
     );
 
     // Standing still (the frames' first 5 s): motion known, CLEAR once STOP's hold is over,
@@ -1186,10 +1199,12 @@ fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it
     assert_eq!(report["motion_accepted"], good, "{report}");
     r.run.report(&format!(
         "{good} VCU_Motion frames and {bad} bad ones (CRC, 300 m/s, DLC 7, repeat) by canplayer: \
-         before them MotionFault and STOP (30 km/h assumed); standing still known on {known}/{} \
+         before them MotionFault, the pedestrian confirmed {:.1} s after RUNNING, then STOP (30 km/h \
+         assumed); standing still known on {known}/{} \
          statuses and CLEAR 4 m before the pedestrian; driving off, first STOP {stop_at:.2} s \
          into the frames (the stopping distance reaches 4 m at 5.45 s); after the last frame \
          MotionFault in {:.0} ms, STOP; rejected {bad}, accepted {good}; {bus}",
+        confirmed - running,
         standing.len(),
         lost * 1e3
     ));

@@ -7,7 +7,7 @@
 set -eu
 . "$(command -v flyd_common.sh)"
 flyd_launch pedestrian-4m
-flyd_wait_frame 10 60
+flyd_wait_frame 40 60
 flyd_event motion-start
 canplayer -I "$RESULTS/input/motion.log"
 flyd_event_after motion-end
