@@ -9,5 +9,6 @@ pub mod config;
 pub mod daemon;
 pub mod logging;
 pub mod mock;
+pub mod record;
 pub mod replay;
 pub mod source;

@@ -130,9 +130,15 @@ struct ReplayArgs {
     /// configuration (default: the built-in defaults).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// A recording of the daemon (`flyd run --record`): its frames through the same engine and
+    /// decider, checked to reproduce the recorded commands bit for bit (with its attached
+    /// configuration unless --config is given; --seed changes the seed). Prints a JSON summary;
+    /// exits 1 where the replay diverges, saying where.
+    #[arg(long, value_name = "FILE.mcap", conflicts_with_all = ["left", "scenario", "sequence"])]
+    mcap: Option<PathBuf>,
     /// Output directory.
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "mcap")]
+    out: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -152,6 +158,10 @@ struct RunArgs {
     /// Stop after SECONDS (default: until SIGTERM/SIGINT, or the end of a mock scenario).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    /// Record to this MCAP file (overrides record.path): the frames, flies, road, obstacle,
+    /// decisions, stats and every CAN frame; `flyd replay --mcap` replays it.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 /// Writes a line to stdout: a full disk or a closed pipe is an error (exit 1 with a message),
@@ -193,6 +203,12 @@ fn main() -> ExitCode {
 }
 
 fn replay_command(args: ReplayArgs) -> Result<()> {
+    if let Some(path) = &args.mcap {
+        return replay_recording(path, &args);
+    }
+    let Some(out) = args.out.clone() else {
+        bail!("replay needs --out DIR");
+    };
     let config = match &args.config {
         Some(path) => config::check(path)?,
         None => DaemonConfig::with_rig(flyd::mock::mock_rig(640, 480)?),
@@ -265,7 +281,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         warmup_generations: config.evolution.warmup_generations,
     };
     let run = replay::run(feed.as_mut(), settings).context("replay")?;
-    replay::write_outputs(&args.out, &run)?;
+    replay::write_outputs(&out, &run)?;
     let reaction = feed.first_obstacle().and_then(|f| {
         replay::Reaction::of(
             &run.trace,
@@ -274,9 +290,27 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
             config.decision.stop_threshold,
         )
     });
-    let summary = Summary::of(&run, &args.out, reaction);
+    let summary = Summary::of(&run, &out, reaction);
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
     Ok(())
+}
+
+/// `flyd replay --mcap FILE [--config C] [--seed S]`.
+fn replay_recording(path: &Path, args: &ReplayArgs) -> Result<()> {
+    let summary = replay::recorded::replay(path, args.config.as_deref(), args.seed)
+        .with_context(|| format!("replaying {}", path.display()))?;
+    say!("{}", serde_json::to_string_pretty(&summary)?)?;
+    match &summary.divergence {
+        None => Ok(()),
+        Some(d) => bail!(
+            "the replay diverges from the recording ({}) at {:.3} s{}: {}",
+            d.what,
+            d.t,
+            d.generation
+                .map_or(String::new(), |g| format!(", generation {g}")),
+            d.detail
+        ),
+    }
 }
 
 /// A recorded pair's calibration into the engine's parameters: its depth range, if it gives
@@ -354,6 +388,9 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
             iface,
         };
     }
+    if let Some(path) = &args.record {
+        config.record.path = Some(path.clone());
+    }
     let duration = args
         .duration
         .map(|s| {
@@ -418,8 +455,18 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
         faults_seen = %report.control.faults_seen,
         motion_accepted = report.control.motion_accepted,
         motion_rejected = report.control.motion_rejected,
+        frames_left = report.left.frames,
+        frames_right = report.right.frames,
+        pairs = report.pairs,
+        snapshots = report.control.snapshots,
+        record_dropped = report.recording.as_ref().map(|r| r.dropped),
         "flyd stopped"
     );
+    if let Some(recording) = &report.recording
+        && recording.writer.failed
+    {
+        tracing::error!("the recording is incomplete: it stopped on a write error (see above)");
+    }
     Ok(())
 }
 

@@ -277,6 +277,60 @@ impl Default for LoggingConfig {
     }
 }
 
+/// `[record]`: what `flyd run --record` (or `record.path`) writes; see [`crate::record`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordConfig {
+    /// Record to this MCAP file from the start (`--record` overrides it); `None`: off.
+    pub path: Option<PathBuf>,
+    /// Start a new file after this many bytes of payload (`rotate_mb`; `None`: never).
+    pub rotate_bytes: Option<u64>,
+    /// ... or after this long (`rotate_s`).
+    pub rotate_after: Option<Duration>,
+    /// Record the camera frames (needed to replay; without them a recording shows what flyd
+    /// decided and found, not what it saw).
+    pub images: bool,
+    /// Record the population every this many generations.
+    pub flies_every: u64,
+    /// Records waiting for the writer at most (a full queue drops).
+    pub queue: usize,
+    /// zstd-compressed chunks.
+    pub compression: bool,
+}
+
+impl Default for RecordConfig {
+    fn default() -> Self {
+        Self {
+            path: None,
+            rotate_bytes: None,
+            rotate_after: None,
+            images: true,
+            flies_every: 10,
+            queue: 1024,
+            compression: true,
+        }
+    }
+}
+
+/// `[live]`: the Foxglove WebSocket live view.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LiveConfig {
+    /// `None`: off (the default).
+    pub listen: Option<std::net::SocketAddr>,
+    /// Images per camera, and populations, sent per second at most.
+    pub image_hz: f64,
+    pub flies_hz: f64,
+}
+
+impl Default for LiveConfig {
+    fn default() -> Self {
+        Self {
+            listen: None,
+            image_hz: 5.0,
+            flies_hz: 5.0,
+        }
+    }
+}
+
 /// Everything `flyd run` needs besides the hardware handles.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DaemonConfig {
@@ -294,6 +348,8 @@ pub struct DaemonConfig {
     pub control: ControlConfig,
     pub can: CanSection,
     pub logging: LoggingConfig,
+    pub record: RecordConfig,
+    pub live: LiveConfig,
 }
 
 impl DaemonConfig {
@@ -346,6 +402,8 @@ impl DaemonConfig {
                 messages: CanConfig::default(),
             },
             logging: LoggingConfig::default(),
+            record: RecordConfig::default(),
+            live: LiveConfig::default(),
         }
     }
 

@@ -78,6 +78,8 @@ pub struct CaptureThread {
     pub stop: Shutdown,
     /// Set to end the daemon (end of stream).
     pub finish: Shutdown,
+    /// Gets a copy of every frame as prepared (never waits: a full queue drops it).
+    pub recorder: Option<crate::record::Recorder>,
 }
 
 const BACKOFF_MIN: Duration = Duration::from_millis(50);
@@ -100,6 +102,11 @@ impl CaptureThread {
                     slot.meta = meta;
                     slot.arrival = now;
                     slot.health = check.observe(&slot.image);
+                    if let Some(recorder) = &self.recorder
+                        && let Some((format, pixels)) = slot.image.pixels()
+                    {
+                        recorder.frame(self.side, meta.timestamp, (w, h), format, pixels);
+                    }
                     self.writer.publish();
                     let ns = u64::try_from(now.as_nanos()).unwrap_or(u64::MAX - 1);
                     self.health.last_frame_ns.store(ns, Ordering::Relaxed);

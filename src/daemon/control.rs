@@ -51,6 +51,7 @@ use super::ring::RingCounters;
 use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
+use crate::record::topics::{DecisionEvent, InputFrom, PerceptionEvent, StatsEvent, String8};
 use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
 use flyd_core::can::messages::{CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, Transmitter};
@@ -60,6 +61,12 @@ use flyd_core::motion::{MotionFault, MotionMonitor};
 use flyd_core::perception::RoadSource;
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
+
+/// The next recorded event's number.
+fn next_seq(s: &mut Loop) -> u64 {
+    s.record_seq += 1;
+    s.record_seq
+}
 
 /// Longest sleep between turns: bounds the reaction to a due frame and to shutdown.
 const MAX_TURN: Duration = Duration::from_millis(5);
@@ -177,6 +184,8 @@ pub struct ControlThread<B: CanBus> {
     pub shutdown: Shutdown,
     /// Internal end request (end of stream).
     pub finish: Shutdown,
+    /// Gets every snapshot taken, command decided, frame received and the stats.
+    pub recorder: Option<crate::record::Recorder>,
 }
 
 /// Mutable state of the loop.
@@ -204,6 +213,8 @@ struct Loop {
     can_episode_errors: u64,
     gen_times: SampleWindow,
     gen_rate: RateMeter,
+    /// Number of the next event recorded (snapshots, commands, received frames: their order).
+    record_seq: u64,
     left_fps: RateMeter,
     right_fps: RateMeter,
     report: ControlReport,
@@ -233,6 +244,7 @@ impl<B: CanBus> ControlThread<B> {
             can_episode_errors: 0,
             gen_times: SampleWindow::new(1024),
             gen_rate: RateMeter::default(),
+            record_seq: 0,
             left_fps: RateMeter::default(),
             right_fps: RateMeter::default(),
             report: ControlReport::default(),
@@ -317,10 +329,12 @@ impl<B: CanBus> ControlThread<B> {
             );
             self.notifier.ready("INIT: warming up");
         }
+        let now = self.clock.now();
+        let input = self.input_at(&snapshot, now);
+        self.record_snapshot(s, &snapshot, &input, now);
         if snapshot.warming_up {
             return;
         }
-        let input = self.input_of(&snapshot);
         s.worst_since_command = Some(match s.worst_since_command {
             Some(worst) => worst.worst(input),
             None => input,
@@ -388,14 +402,81 @@ impl<B: CanBus> ControlThread<B> {
 
     /// What `snapshot` tells the decider, at the speed known now (faults are added when the
     /// command is decided).
-    fn input_of(&self, snapshot: &Snapshot) -> DecisionInput {
-        let now = self.clock.now();
+    fn input_at(&self, snapshot: &Snapshot, now: Duration) -> DecisionInput {
         let age = now.saturating_sub(snapshot.capture_time());
         DecisionInput {
             global_warning: snapshot.global_warning,
             latency: (age + self.frame_period).as_secs_f64(),
             ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(now))
         }
+    }
+
+    /// Records a snapshot taken and what it told the decider (`input`, at `now`).
+    fn record_snapshot(
+        &self,
+        s: &mut Loop,
+        snapshot: &Snapshot,
+        input: &DecisionInput,
+        now: Duration,
+    ) {
+        let Some(recorder) = &self.recorder else {
+            return;
+        };
+        let candidate = snapshot.tracked.obstacle;
+        let road = snapshot.road;
+        let event = PerceptionEvent {
+            seq: next_seq(s),
+            t_ns: crate::record::nanos(now),
+            generation: snapshot.generation,
+            warming_up: snapshot.warming_up,
+            global_warning: snapshot.global_warning,
+            obstacle_m: input.obstacle,
+            candidate_m: candidate.map(|o| o.distance),
+            candidate_lateral_m: candidate.map(|o| o.lateral),
+            speed: input.speed,
+            latency: input.latency,
+            road_height_m: road.plane.height,
+            road_slope_z: road.plane.slope_z,
+            road_slope_x: road.plane.slope_x,
+            road_measured: road.measured(),
+            matched: snapshot.matched,
+            generation_us: snapshot.generation_time.as_secs_f64() * 1e6,
+        };
+        let obstacle = candidate.map(|o| [o.distance, o.lateral, o.bottom, o.top]);
+        recorder.perception(event, obstacle, snapshot.tracked.confirmed);
+    }
+
+    /// Records a command decided at `now` from `input` (which came `from` there).
+    #[allow(clippy::too_many_arguments)]
+    fn record_decision(
+        &self,
+        s: &mut Loop,
+        now: Duration,
+        from: InputFrom,
+        latest: Option<(u64, DecisionInput)>,
+        input: &DecisionInput,
+        decision: &flyd_core::decision::Decision,
+    ) {
+        let Some(recorder) = &self.recorder else {
+            return;
+        };
+        let event = DecisionEvent {
+            seq: next_seq(s),
+            t_ns: crate::record::nanos(now),
+            from,
+            latest_generation: latest.map(|(g, _)| g),
+            latest_speed: latest.map(|(_, i)| i.speed),
+            latest_latency: latest.map(|(_, i)| i.latency),
+            faults: u32::from(s.faults.bits()),
+            command: String8::new(decision.command.name()),
+            reason: String8::new(decision.reason.name()),
+            changed: decision.changed,
+            global_warning: input.global_warning,
+            obstacle_m: input.obstacle,
+            speed: input.speed,
+            state: String8::new(s.state.name()),
+        };
+        recorder.decision(event);
     }
 
     /// Where the decision's speed comes from, for the logs.
@@ -427,6 +508,10 @@ impl<B: CanBus> ControlThread<B> {
                         if s.rx_failing {
                             tracing::info!("CAN receive recovered");
                             s.rx_failing = false;
+                        }
+                        if let Some(recorder) = &self.recorder {
+                            let seq = next_seq(s);
+                            recorder.can(false, seq, now, frame.id, frame.payload());
                         }
                         if frame.id != motion.id {
                             continue;
@@ -514,14 +599,21 @@ impl<B: CanBus> ControlThread<B> {
             global_warning: f64::NAN,
             ..DecisionInput::at_speed(None, f64::NAN)
         };
-        let input = s
-            .worst_since_command
-            .take()
-            .or_else(|| {
-                s.latest
-                    .filter(|l| !l.warming_up)
-                    .map(|l| self.input_of(&l))
-            })
+        let taken = s.worst_since_command.take();
+        let latest = match taken {
+            Some(_) => None,
+            None => s
+                .latest
+                .filter(|l| !l.warming_up)
+                .map(|l| (l.generation, self.input_at(&l, self.clock.now()))),
+        };
+        let from = match (taken, latest) {
+            (Some(_), _) => InputFrom::Taken,
+            (None, Some(_)) => InputFrom::Latest,
+            (None, None) => InputFrom::Untrusted,
+        };
+        let input = taken
+            .or(latest.map(|(_, input)| input))
             .unwrap_or(untrusted);
         let warning = input.global_warning;
         let decision = self.decider.update(
@@ -531,6 +623,7 @@ impl<B: CanBus> ControlThread<B> {
             },
             now,
         );
+        self.record_decision(s, now, from, latest, &input, &decision);
         if decision.changed {
             s.report.decision_changes += 1;
             tracing::info!(
@@ -650,6 +743,20 @@ impl<B: CanBus> ControlThread<B> {
             can_errors = s.report.can_errors,
             "stats"
         );
+        if let Some(recorder) = &self.recorder {
+            recorder.stats(StatsEvent {
+                t_ns: crate::record::nanos(self.clock.now()),
+                fps_left: s.left_fps.rate(),
+                fps_right: s.right_fps.rate(),
+                generations_per_sec: s.gen_rate.rate(),
+                gen_p50_ms: ms(p50),
+                gen_p99_ms: ms(p99),
+                generations: latest.map_or(0, |l| l.generation),
+                pairs: i.evolution.pairs.load(Ordering::Relaxed),
+                snapshots_dropped: i.evolution.snapshots_dropped.load(Ordering::Relaxed),
+                record_dropped: recorder.counters().dropped(),
+            });
+        }
         let status = format!(
             "{}: {} | {:.0}/{:.0} fps | {:.0} gen/s | faults {}",
             s.state,
@@ -670,6 +777,11 @@ impl<B: CanBus> ControlThread<B> {
         tracing::info!(command = %decision.command, "shutting down: last command and SHUTDOWN status");
         self.notifier.stopping("SHUTDOWN");
         let warning = s.latest.map_or(f64::NAN, |l| l.global_warning);
+        let input = DecisionInput {
+            global_warning: warning,
+            ..DecisionInput::at_speed(None, f64::NAN)
+        };
+        self.record_decision(s, now, InputFrom::Shutdown, None, &input, &decision);
         let r = self.tx.send_command(&CommandMsg::of(&decision, warning));
         self.sent(s, r, "FLYD_Command");
         s.report.commands_sent += 1;

@@ -32,6 +32,7 @@ use super::shared_motion::SharedMotion;
 use super::snapshot::Snapshot;
 use super::threads::Shutdown;
 use crate::config::EvolutionConfig;
+use crate::record::topics::{PairEvent, PredictEvent};
 use crate::source::FrameMeta;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
@@ -67,6 +68,9 @@ pub struct EvolutionThread {
     /// The vehicle's trusted motion: each new pair's flies are first moved with it over the
     /// time since the previous pair (`None`: `vehicle.predict_flies = false`).
     pub motion: Option<SharedMotion>,
+    /// Gets each new pair (with the motion its flies were moved with) and the flies every
+    /// `record.flies_every` generations.
+    pub recorder: Option<crate::record::Recorder>,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -85,12 +89,18 @@ impl EvolutionThread {
         let mut blind_pairs: u32 = 0;
         let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
+            let mut predicted = None;
             if let Some((l, r, health)) = self.take_pair() {
                 if let (Some((previous, _)), Some(motion)) =
                     (pair, self.motion.as_ref().and_then(SharedMotion::get))
                 {
                     let dt = l.timestamp.saturating_sub(previous.timestamp);
                     self.perception.predict(motion, dt.as_secs_f64());
+                    predicted = Some(PredictEvent {
+                        speed: motion.speed,
+                        yaw_rate: motion.yaw_rate,
+                        dt: dt.as_secs_f64(),
+                    });
                 }
                 pair = Some((l, r));
                 let next = self.sensor.observe(&health[0], &health[1]);
@@ -110,6 +120,25 @@ impl EvolutionThread {
                 self.log_road(&report.road);
             }
             let finished = self.clock.now();
+            if let Some(recorder) = &self.recorder {
+                if stats.new_frame {
+                    recorder.pair(
+                        finished,
+                        PairEvent {
+                            generation: stats.generation,
+                            pair_id: self.stereo.id,
+                            left_ns: crate::record::nanos(left.timestamp),
+                            right_ns: crate::record::nanos(right.timestamp),
+                            predict: predicted,
+                        },
+                    );
+                }
+                recorder.flies(
+                    stats.generation,
+                    finished,
+                    self.perception.engine().population(),
+                );
+            }
             let generation_time = finished.saturating_sub(started);
             let overrun = generation_time > self.config.max_generation_time;
             let pc = self.pairer.counts();

@@ -59,6 +59,7 @@ pub use hardware::{Cameras, InterfaceLock, lock_interface};
 pub use snapshot::Snapshot;
 pub use threads::{Shutdown, spawn_named};
 
+use crate::bus::RecordingBus;
 use crate::config::{ConfigError, DaemonConfig};
 use capture::{CameraHealth, CaptureThread};
 use control::{ControlThread, Inputs, MotionInputs};
@@ -74,7 +75,7 @@ use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::sensor::SensorMonitor;
 use notify::ServiceNotifier;
 use pairer::{Pairer, Side};
-use ring::frame_ring;
+use ring::frame_ring_of;
 
 /// Why the daemon could not start (runtime faults are not errors: see the module docs).
 #[derive(Debug, Error)]
@@ -143,6 +144,8 @@ pub enum DaemonError {
     },
     #[error("thread {thread} panicked")]
     Panicked { thread: &'static str },
+    #[error("recorder")]
+    Record(#[from] crate::record::WriterError),
 }
 
 /// Why the run ended.
@@ -179,6 +182,18 @@ pub struct RunReport {
     /// The evolution thread stopped on an engine error (already logged; the daemon ran on in
     /// FAULT with the safe command).
     pub evolution_error: Option<EngineError>,
+    /// What the recorder wrote (`None`: no `[record]` path and no `[live]` view).
+    pub recording: Option<RecordingReport>,
+}
+
+/// The recorder's figures at the end of a run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecordingReport {
+    pub writer: crate::record::writer::WriterReport,
+    /// Records dropped on the real-time side (a full queue, no free buffer).
+    pub dropped: u64,
+    /// The live view's address, if it listened.
+    pub live: Option<std::net::SocketAddr>,
 }
 
 const EVOLUTION: &str = "flyd-evolution";
@@ -231,14 +246,26 @@ pub fn run(
     let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
     let decider = Decider::new(config.decision)?;
-    let tx = Transmitter::new(can.tx, config.can.messages)?;
-    let (left_writer, left_reader) = frame_ring(width, height)?;
-    let (right_writer, right_reader) = frame_ring(width, height)?;
-    let stereo = StereoFrame::new(
-        PreparedImage::new(width, height)?,
-        PreparedImage::new(width, height)?,
-        0,
-    );
+    let recording = start_recording(config, &rig)?;
+    let recorder = recording.as_ref().map(|r| r.recorder.clone());
+    let tx = Transmitter::new(
+        RecordingBus::new(can.tx, recorder.clone(), clock.clone()),
+        config.can.messages,
+    )?;
+    // A recorder keeps the frames as captured: every image that goes round the rings (they
+    // are swapped with the engine's) then keeps its packed pixels.
+    let image = || {
+        PreparedImage::new(width, height).map(|i| {
+            if recorder.is_some() {
+                i.retain_pixels()
+            } else {
+                i
+            }
+        })
+    };
+    let (left_writer, left_reader) = frame_ring_of(image()?);
+    let (right_writer, right_reader) = frame_ring_of(image()?);
+    let stereo = StereoFrame::new(image()?, image()?, 0);
     let (snapshot_tx, snapshot_rx) = crossbeam_channel::bounded(config.evolution.snapshot_queue);
 
     let stop = Shutdown::new();
@@ -281,6 +308,7 @@ pub fn run(
             poll_timeout,
             stop: stop.clone(),
             finish: finish.clone(),
+            recorder: recorder.clone(),
         };
         let name = CAPTURE[index];
         let handle =
@@ -305,6 +333,7 @@ pub fn run(
         road_source: None,
         sensor: SensorMonitor::new(config.sensor),
         motion: config.vehicle.predict_flies.then(|| motion.clone()),
+        recorder: recorder.clone(),
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
@@ -353,7 +382,9 @@ pub fn run(
         stats_interval: config.logging.stats_interval,
         shutdown: shutdown.clone(),
         finish: finish.clone(),
+        recorder: recorder.clone(),
     };
+    drop(recorder);
     let control_report = spawn_named(CONTROL, move || control.run())
         .map_err(|error| DaemonError::Spawn {
             thread: CONTROL,
@@ -363,6 +394,11 @@ pub fn run(
         .map_err(|_| DaemonError::Panicked { thread: CONTROL })?;
 
     let evolution_error = threads.join()?;
+    // Every thread has dropped its recorder handle: the writer drains the queue and closes.
+    let recording = match recording {
+        Some(r) => Some(r.finish()?),
+        None => None,
+    };
     let camera = |i: usize| CameraReport {
         frames: rings[i].published(),
         dropped: rings[i].dropped(),
@@ -386,7 +422,83 @@ pub fn run(
         snapshots_dropped: c.snapshots_dropped.load(Relaxed),
         overruns: c.overruns.load(Relaxed),
         evolution_error,
+        recording,
     })
+}
+
+/// A running recorder: the handle the threads clone, and the writer thread.
+struct Recording {
+    recorder: crate::record::Recorder,
+    writer: crate::record::writer::Writer,
+}
+
+impl Recording {
+    fn finish(self) -> Result<RecordingReport, DaemonError> {
+        let Recording { recorder, writer } = self;
+        let counters = recorder.counters().clone();
+        drop(recorder);
+        let report = writer.handle.join().map_err(|_| DaemonError::Panicked {
+            thread: "flyd-record",
+        })?;
+        Ok(RecordingReport {
+            writer: report,
+            dropped: counters.dropped(),
+            live: writer.live_addr,
+        })
+    }
+}
+
+/// Starts the recorder when `[record]` has a path or `[live]` listens.
+fn start_recording(
+    config: &DaemonConfig,
+    rig: &flyd_core::geometry::StereoRig,
+) -> Result<Option<Recording>, DaemonError> {
+    let (record, live) = (&config.record, &config.live);
+    if record.path.is_none() && live.listen.is_none() {
+        return Ok(None);
+    }
+    let (recorder, rx, returns) = crate::record::channel(crate::record::RecorderSizes {
+        queue: record.queue,
+        width: config.cameras.width,
+        height: config.cameras.height,
+        flies: config.engine.flies,
+        images: record.images,
+        flies_every: record.flies_every,
+    });
+    let config_text = config
+        .file
+        .as_deref()
+        .and_then(|p| flyd_core::textfile::read(p).ok());
+    let mut metadata = std::collections::BTreeMap::new();
+    metadata.insert("flyd_version".into(), env!("CARGO_PKG_VERSION").into());
+    metadata.insert("seed".into(), config.engine.seed.to_string());
+    metadata.insert("flies".into(), config.engine.flies.to_string());
+    metadata.insert("flies_every".into(), record.flies_every.to_string());
+    metadata.insert("images".into(), record.images.to_string());
+    if let Some(file) = &config.file {
+        metadata.insert("config_path".into(), file.display().to_string());
+    }
+    let options = crate::record::RecordOptions {
+        path: record.path.clone(),
+        rotate_bytes: record.rotate_bytes,
+        rotate_after: record.rotate_after,
+        compression: record.compression,
+        live: live
+            .listen
+            .map(|listen| crate::record::writer::LiveOptions {
+                listen,
+                image_period: std::time::Duration::from_secs_f64(1.0 / live.image_hz),
+                flies_period: std::time::Duration::from_secs_f64(1.0 / live.flies_hz),
+            }),
+        config_text,
+        metadata,
+    };
+    let counters = recorder.counters().clone();
+    let writer = crate::record::spawn_writer(options, rig, rx, returns, counters)?;
+    if let Some(path) = &record.path {
+        tracing::info!(file = %path.display(), images = record.images, "recording");
+    }
+    Ok(Some(Recording { recorder, writer }))
 }
 
 /// The worker threads; dropping it (an early return) stops and joins them.

@@ -87,8 +87,14 @@ pub struct FrameReader {
 
 /// A ring of three `width` x `height` frames (allocated here, once).
 pub fn frame_ring(width: u32, height: u32) -> Result<(FrameWriter, FrameReader), FrameError> {
+    Ok(frame_ring_of(PreparedImage::new(width, height)?))
+}
+
+/// A ring whose three slots hold copies of `image` (its size, and whether it keeps its
+/// pixels: [`PreparedImage::retain_pixels`]).
+pub fn frame_ring_of(image: PreparedImage) -> (FrameWriter, FrameReader) {
     let slot = Slot {
-        image: PreparedImage::new(width, height)?,
+        image,
         meta: FrameMeta {
             timestamp: Duration::ZERO,
             sequence: 0,
@@ -99,7 +105,7 @@ pub fn frame_ring(width: u32, height: u32) -> Result<(FrameWriter, FrameReader),
     };
     let (input, output) = TripleBuffer::new(&slot).split();
     let counters = Arc::new(RingCounters::default());
-    Ok((
+    (
         FrameWriter {
             input,
             counters: counters.clone(),
@@ -110,7 +116,7 @@ pub fn frame_ring(width: u32, height: u32) -> Result<(FrameWriter, FrameReader),
             counters,
             current: 0,
         },
-    ))
+    )
 }
 
 impl FrameWriter {

@@ -27,6 +27,7 @@
 
 pub mod feed;
 pub mod output;
+pub mod recorded;
 pub mod summary;
 
 pub use feed::{FrameFeed, PairFeed, SEQUENCE_LAYOUTS, ScenarioFeed, SequenceFeed};

@@ -128,6 +128,18 @@ pub struct PreparedImage {
     /// Each colour channel's mean and standard deviation as captured, before normalisation
     /// (what the sensor checks of [`crate::sensor`] judge contrast and exposure on).
     raw: RawStats,
+    /// The packed pixels of the last [`PreparedImage::prepare`], kept only when
+    /// [`PreparedImage::retain_pixels`] asked for them (a recorder copies them out).
+    pixels: Option<RetainedPixels>,
+}
+
+/// The last prepared frame's packed pixels: `buffer[..len]` (sized for RGB at the start, so
+/// that neither a refill nor a clone of the image reallocates it).
+#[derive(Debug, Clone)]
+struct RetainedPixels {
+    format: PixelFormat,
+    len: usize,
+    buffer: Vec<u8>,
 }
 
 /// A frame's channels as captured (before photometric normalisation): mean and standard
@@ -192,7 +204,27 @@ impl PreparedImage {
             row_scratch: vec![0; w],
             block_means: vec![0; w.div_ceil(BLOCK) * h.div_ceil(BLOCK)],
             raw: RawStats::default(),
+            pixels: None,
         })
+    }
+
+    /// Keeps a copy of the packed pixels each [`PreparedImage::prepare`] is given (what a
+    /// recording stores, so that a replay prepares the very same image); the buffer is sized
+    /// here, once, for RGB. Off by default: the copy costs a memcpy of the frame.
+    pub fn retain_pixels(mut self) -> Self {
+        self.pixels = Some(RetainedPixels {
+            format: PixelFormat::Rgb8,
+            len: 0,
+            buffer: vec![0; self.width * self.height * 3],
+        });
+        self
+    }
+
+    /// The packed pixels of the last prepare, when retained ([`PreparedImage::retain_pixels`]).
+    pub fn pixels(&self) -> Option<(PixelFormat, &[u8])> {
+        self.pixels
+            .as_ref()
+            .map(|p| (p.format, &p.buffer[..p.len.min(p.buffer.len())]))
     }
 
     /// Prepares a new image from packed pixels.
@@ -270,6 +302,14 @@ impl PreparedImage {
                 expected,
                 got: pixels.len(),
             });
+        }
+        if let Some(kept) = self.pixels.as_mut()
+            && let Some(to) = kept.buffer.get_mut(..pixels.len())
+        {
+            // `pixels` is at most w * h * 3 bytes (checked above): the buffer's size.
+            to.copy_from_slice(pixels);
+            kept.len = pixels.len();
+            kept.format = format;
         }
         self.channels = match format {
             PixelFormat::Rgb8 => 3,

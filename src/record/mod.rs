@@ -1,0 +1,455 @@
+//! Recording and the live view: what flyd saw, found, decided and sent, as MCAP files and
+//! over the Foxglove WebSocket protocol.
+//!
+//! ```text
+//!  capture threads --frames--\
+//!  evolution thread --pairs, flies-->  bounded queue (try_send)  -->[flyd-record]--> MCAP file(s)
+//!  control thread --snapshots, decisions, CAN tx/rx, stats--/            writer   \-> Foxglove WS
+//! ```
+//!
+//! - The real-time threads hand [`Record`]s to the writer thread through one bounded queue
+//!   with `try_send`; big payloads (images, flies) travel in buffers taken from pools filled at
+//!   start, so a producer never allocates and never waits. A full queue or an empty pool drops
+//!   the record: counted ([`RecordCounters`]), logged once per episode, never a delay.
+//! - The writer ([`writer`]) encodes and writes; a write error (a full disk) stops the
+//!   recording with an error log and [`RecordCounters::failed`] set: a fault of the recorder,
+//!   never of the perception (the daemon drives on).
+//! - The topics and their schemas are in [`topics`]; [`read`] reads a recording back for
+//!   `flyd replay --mcap`.
+//!
+//! What is recorded makes a replay exact: every frame as the capture thread prepared it (the
+//! packed pixels given to `PreparedImage::prepare`), every new pair with the first generation
+//! run on it and the motion its flies were moved with, every snapshot the decider was fed with
+//! the speed and latency then, every command with its faults, and every CAN frame. The
+//! configuration's text is attached (`config.toml`).
+
+pub mod read;
+pub mod topics;
+pub mod writer;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+
+use crate::daemon::pairer::Side;
+use flyd_core::engine::Population;
+use flyd_core::frame::PixelFormat;
+use topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, StatsEvent};
+
+pub use writer::{RecordOptions, WriterError, spawn_writer};
+
+/// Floats per fly in a [`Record::Flies`] buffer: x, y, z (vehicle frame), fitness, warning.
+pub const FLY_FLOATS: usize = 5;
+
+/// One thing to record, as the real-time threads hand it over.
+#[derive(Debug)]
+pub enum Record {
+    /// A camera frame as prepared (`pixels` is a pool buffer: `pixels[..len]`).
+    Frame {
+        side: Side,
+        timestamp: Duration,
+        format: PixelFormat,
+        width: u32,
+        height: u32,
+        len: usize,
+        pixels: Vec<u8>,
+    },
+    /// The population after `generation` (`points` is a pool buffer, [`FLY_FLOATS`] a fly).
+    Flies {
+        generation: u64,
+        at: Duration,
+        flies: usize,
+        points: Vec<f32>,
+    },
+    Pair {
+        at: Duration,
+        event: PairEvent,
+    },
+    Perception {
+        event: PerceptionEvent,
+        /// The latest obstacle estimate (for the scene), vehicle frame: distance, lateral,
+        /// bottom, top.
+        obstacle: Option<[f64; 4]>,
+        confirmed: bool,
+    },
+    Decision(DecisionEvent),
+    Stats(StatsEvent),
+    Can {
+        sent: bool,
+        seq: u64,
+        at: Duration,
+        id: u32,
+        len: u8,
+        data: [u8; 8],
+    },
+}
+
+/// What the recorder did, read by the stats and at the end (`Relaxed`: statistics).
+#[derive(Debug, Default)]
+pub struct RecordCounters {
+    pub written: AtomicU64,
+    /// Records dropped: the queue was full, or no buffer was free.
+    pub dropped: AtomicU64,
+    /// Bytes handed to the file(s), uncompressed payloads.
+    pub bytes: AtomicU64,
+    /// The recording stopped on a write error.
+    pub failed: AtomicBool,
+    /// A drop episode is being logged (reset when a record passes again).
+    dropping: AtomicBool,
+}
+
+impl RecordCounters {
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+    pub fn written(&self) -> u64 {
+        self.written.load(Ordering::Relaxed)
+    }
+    pub fn has_failed(&self) -> bool {
+        self.failed.load(Ordering::Relaxed)
+    }
+}
+
+/// A bounded pool of equally sized buffers, filled at start.
+#[derive(Debug, Clone)]
+struct Pool<T> {
+    free: Receiver<Vec<T>>,
+    back: Sender<Vec<T>>,
+}
+
+impl<T: Clone + Default> Pool<T> {
+    fn new(buffers: usize, len: usize) -> Self {
+        let (back, free) = crossbeam_channel::bounded(buffers);
+        for _ in 0..buffers {
+            // Cannot fail: the channel holds `buffers` items.
+            let _ = back.try_send(vec![T::default(); len]);
+        }
+        Self { free, back }
+    }
+
+    fn take(&self) -> Option<Vec<T>> {
+        self.free.try_recv().ok()
+    }
+
+    /// Puts a buffer back (dropped if the pool is somehow full: never blocks).
+    fn give(&self, buffer: Vec<T>) {
+        let _ = self.back.try_send(buffer);
+    }
+}
+
+/// The real-time threads' handle on the recorder: cheap to clone, never blocks.
+#[derive(Debug, Clone)]
+pub struct Recorder {
+    queue: Sender<Record>,
+    frames: Pool<u8>,
+    flies: Pool<f32>,
+    counters: Arc<RecordCounters>,
+    /// Record the images (`record.images`).
+    images: bool,
+    /// Record the flies every this many generations (`record.flies_every`).
+    flies_every: u64,
+}
+
+/// What the writer thread gets besides the queue: the pools to give buffers back to.
+pub struct Returns {
+    frames: Pool<u8>,
+    flies: Pool<f32>,
+}
+
+impl Returns {
+    pub fn frame(&self, buffer: Vec<u8>) {
+        self.frames.give(buffer);
+    }
+    pub fn flies(&self, buffer: Vec<f32>) {
+        self.flies.give(buffer);
+    }
+}
+
+/// Queue and pool sizes of a recorder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RecorderSizes {
+    /// Records in the queue at most.
+    pub queue: usize,
+    pub width: u32,
+    pub height: u32,
+    pub flies: usize,
+    pub images: bool,
+    pub flies_every: u64,
+}
+
+/// A recorder's handle and the writer's end of its queue.
+pub fn channel(sizes: RecorderSizes) -> (Recorder, Receiver<Record>, Returns) {
+    let (queue, rx) = crossbeam_channel::bounded(sizes.queue);
+    // Enough frame buffers for ~half a second of both cameras at 30 fps in flight.
+    let frame_len = sizes.width as usize * sizes.height as usize * 3;
+    let frames = Pool::new(if sizes.images { 32 } else { 0 }, frame_len);
+    let flies = Pool::new(8, sizes.flies * FLY_FLOATS);
+    let recorder = Recorder {
+        queue,
+        frames: frames.clone(),
+        flies: flies.clone(),
+        counters: Arc::new(RecordCounters::default()),
+        images: sizes.images,
+        flies_every: sizes.flies_every.max(1),
+    };
+    (recorder, rx, Returns { frames, flies })
+}
+
+impl Recorder {
+    pub fn counters(&self) -> &Arc<RecordCounters> {
+        &self.counters
+    }
+
+    /// Whether the flies of `generation` are due.
+    pub fn flies_due(&self, generation: u64) -> bool {
+        generation.is_multiple_of(self.flies_every)
+    }
+
+    /// Hands `record` over without waiting; a full queue drops it (counted, logged once per
+    /// episode). Returns the record when it was not taken (its buffer goes back to a pool).
+    fn send(&self, record: Record) -> Option<Record> {
+        match self.queue.try_send(record) {
+            Ok(()) => {
+                if self.counters.dropping.swap(false, Ordering::Relaxed) {
+                    tracing::info!(dropped = self.counters.dropped(), "recorder keeps up again");
+                }
+                None
+            }
+            Err(TrySendError::Full(r) | TrySendError::Disconnected(r)) => {
+                self.dropped();
+                Some(r)
+            }
+        }
+    }
+
+    fn dropped(&self) {
+        let c = &self.counters;
+        c.dropped.fetch_add(1, Ordering::Relaxed);
+        if !c.dropping.swap(true, Ordering::Relaxed) && !c.has_failed() {
+            tracing::warn!(
+                dropped = c.dropped(),
+                "recorder queue full: records are dropped (the disk or the live view is too \
+                 slow); the perception is not delayed (logged once until it keeps up)"
+            );
+        }
+    }
+
+    /// A frame as prepared; `pixels` is what `PreparedImage::prepare` was given.
+    pub fn frame(
+        &self,
+        side: Side,
+        timestamp: Duration,
+        (width, height): (u32, u32),
+        format: PixelFormat,
+        pixels: &[u8],
+    ) {
+        if !self.images {
+            return;
+        }
+        let Some(mut buffer) = self.frames.take() else {
+            self.dropped();
+            return;
+        };
+        let Some(to) = buffer.get_mut(..pixels.len()) else {
+            self.frames.give(buffer);
+            self.dropped();
+            return;
+        };
+        to.copy_from_slice(pixels);
+        let record = Record::Frame {
+            side,
+            timestamp,
+            format,
+            width,
+            height,
+            len: pixels.len(),
+            pixels: buffer,
+        };
+        if let Some(Record::Frame { pixels, .. }) = self.send(record) {
+            self.frames.give(pixels);
+        }
+    }
+
+    /// The population after `generation`, if due.
+    pub fn flies(&self, generation: u64, at: Duration, population: &Population) {
+        if self.flies_due(generation) {
+            self.fly_fields(generation, at, population.into());
+        }
+    }
+
+    fn fly_fields(&self, generation: u64, at: Duration, p: FlyFields<'_>) {
+        let Some(mut buffer) = self.flies.take() else {
+            self.dropped();
+            return;
+        };
+        let n = p.len().min(buffer.len() / FLY_FLOATS);
+        for (i, fly) in buffer.chunks_exact_mut(FLY_FLOATS).take(n).enumerate() {
+            fly.copy_from_slice(&[p.x[i], p.y[i], p.z[i], p.fitness[i], p.warning[i]]);
+        }
+        let record = Record::Flies {
+            generation,
+            at,
+            flies: n,
+            points: buffer,
+        };
+        if let Some(Record::Flies { points, .. }) = self.send(record) {
+            self.flies.give(points);
+        }
+    }
+
+    pub fn pair(&self, at: Duration, event: PairEvent) {
+        self.send(Record::Pair { at, event });
+    }
+
+    pub fn perception(&self, event: PerceptionEvent, obstacle: Option<[f64; 4]>, confirmed: bool) {
+        self.send(Record::Perception {
+            event,
+            obstacle,
+            confirmed,
+        });
+    }
+
+    pub fn decision(&self, event: DecisionEvent) {
+        self.send(Record::Decision(event));
+    }
+
+    pub fn stats(&self, event: StatsEvent) {
+        self.send(Record::Stats(event));
+    }
+
+    /// A CAN frame sent (accepted by the bus) or received; `data` is at most 8 bytes.
+    pub fn can(&self, sent: bool, seq: u64, at: Duration, id: u32, data: &[u8]) {
+        let mut bytes = [0; 8];
+        let len = data.len().min(8);
+        bytes[..len].copy_from_slice(&data[..len]);
+        self.send(Record::Can {
+            sent,
+            seq,
+            at,
+            id,
+            len: len as u8,
+            data: bytes,
+        });
+    }
+}
+
+/// The fields of the flies a recording keeps.
+#[derive(Debug, Clone, Copy)]
+struct FlyFields<'a> {
+    x: &'a [f32],
+    y: &'a [f32],
+    z: &'a [f32],
+    fitness: &'a [f32],
+    warning: &'a [f32],
+}
+
+impl FlyFields<'_> {
+    fn len(&self) -> usize {
+        [self.y, self.z, self.fitness, self.warning]
+            .iter()
+            .fold(self.x.len(), |n, f| n.min(f.len()))
+    }
+}
+
+impl<'a> From<&'a Population> for FlyFields<'a> {
+    fn from(p: &'a Population) -> Self {
+        Self {
+            x: &p.x,
+            y: &p.y,
+            z: &p.z,
+            fitness: &p.fitness,
+            warning: &p.warning,
+        }
+    }
+}
+
+/// A [`CanEvent`] of a recorded frame.
+pub fn can_event(seq: u64, at: Duration, id: u32, data: &[u8]) -> CanEvent {
+    CanEvent {
+        seq,
+        t_ns: nanos(at),
+        id,
+        data: topics::hex(data),
+    }
+}
+
+/// A clock time in nanoseconds (saturating).
+pub fn nanos(t: Duration) -> u64 {
+    u64::try_from(t.as_nanos()).unwrap_or(u64::MAX)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sizes(queue: usize) -> RecorderSizes {
+        RecorderSizes {
+            queue,
+            width: 4,
+            height: 2,
+            flies: 3,
+            images: true,
+            flies_every: 2,
+        }
+    }
+
+    #[test]
+    fn a_full_queue_drops_and_counts_and_the_buffer_returns_to_its_pool() {
+        let (recorder, rx, returns) = channel(sizes(1));
+        let px = [7u8; 24];
+        recorder.frame(Side::Left, Duration::ZERO, (4, 2), PixelFormat::Rgb8, &px);
+        recorder.frame(Side::Right, Duration::ZERO, (4, 2), PixelFormat::Rgb8, &px);
+        assert_eq!(recorder.counters().dropped(), 1);
+        let Ok(Record::Frame {
+            side, len, pixels, ..
+        }) = rx.try_recv()
+        else {
+            panic!("a frame");
+        };
+        assert_eq!((side, len, &pixels[..len]), (Side::Left, 24, &px[..]));
+        returns.frame(pixels);
+        // Every buffer is back: 32 frames can be taken again, none was lost to the drop.
+        let mut taken = 0;
+        while recorder.frames.take().is_some() {
+            taken += 1;
+        }
+        assert_eq!(taken, 32);
+    }
+
+    #[test]
+    fn flies_are_copied_every_nth_generation_only() {
+        let (recorder, rx, _returns) = channel(sizes(8));
+        let (x, rest) = ([1.0, 2.0, 3.0], [0.5; 3]);
+        let fields = FlyFields {
+            x: &x,
+            y: &rest,
+            z: &[10.0; 3],
+            fitness: &[4.0; 3],
+            warning: &[0.1; 3],
+        };
+        assert!(!recorder.flies_due(3), "generation 3 is not due at every 2");
+        assert!(recorder.flies_due(4));
+        recorder.fly_fields(4, Duration::ZERO, fields);
+        let Ok(Record::Flies { flies, points, .. }) = rx.try_recv() else {
+            panic!("flies");
+        };
+        assert_eq!(flies, 3);
+        assert_eq!(&points[5..10], &[2.0, 0.5, 10.0, 4.0, 0.1]);
+    }
+
+    #[test]
+    fn a_frame_larger_than_the_pool_buffers_is_dropped_not_cut() {
+        let (recorder, rx, _returns) = channel(sizes(8));
+        recorder.frame(
+            Side::Left,
+            Duration::ZERO,
+            (8, 8),
+            PixelFormat::Rgb8,
+            &[0; 192],
+        );
+        assert!(rx.try_recv().is_err());
+        assert_eq!(recorder.counters().dropped(), 1);
+    }
+}

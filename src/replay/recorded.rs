@@ -1,0 +1,537 @@
+//! `flyd replay --mcap`: a recording's frames through the same engine and decider, and
+//! whether they reproduce the recorded decisions bit for bit.
+//!
+//! The daemon is asynchronous, so a recording keeps what its threads' timing decided (see
+//! [`crate::record`]): which frames were paired, the first generation run on each pair and
+//! the motion its flies were moved with, which snapshots the decider was fed with the speed
+//! and latency then, and when each command was decided with which faults. The replay takes
+//! those as given and recomputes everything else:
+//!
+//! 1. the perception: the recorded frames prepared again, [`Perception::step`] generation
+//!    by generation (each pair from its first generation to the next pair's), the flies
+//!    predicted with the recorded motion; each recorded snapshot's global warning and
+//!    obstacle are compared with the replayed generation's (the first difference is where
+//!    the perception diverges);
+//! 2. the decision: the [`Decider`] fed the replayed snapshots, merged as the control thread
+//!    merged them, at the recorded times and faults; `VCU_Motion` frames received go through
+//!    the [`MotionMonitor`] again, and its speed is checked against the recorded one;
+//! 3. the commands: each `FLYD_Command` frame encoded again (same E2E counter and CRC) and
+//!    compared byte for byte with the frame the daemon sent.
+//!
+//! Sensor faults and the other fault bits are inputs here (recorded per command), as the
+//! clock is; they are not re-derived.
+
+use std::collections::VecDeque;
+use std::path::Path;
+use std::time::Duration;
+
+use crate::bus::MemoryBus;
+use crate::config::{ConfigError, DaemonConfig};
+use crate::daemon::pairer::Side;
+use crate::record::nanos;
+use crate::record::read::{ControlEvent, Frame, ReadError, Recording};
+use crate::record::topics::{InputFrom, PairEvent};
+use flyd_core::can::messages::CommandMsg;
+use flyd_core::can::{CanConfigError, Transmitter};
+use flyd_core::clock::ManualClock;
+use flyd_core::decision::{Decider, DecisionConfigError, DecisionInput};
+use flyd_core::engine::EngineError;
+use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::motion::{MotionMonitor, VehicleMotion};
+use flyd_core::perception::{Perception, PerceptionError};
+use flyd_core::status::FaultBits;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RecordedError {
+    #[error("reading the recording")]
+    Read(#[from] ReadError),
+    #[error(
+        "{0}: no configuration attached (config.toml) and none given: pass --config with the \
+         file the daemon ran with"
+    )]
+    NoConfig(String),
+    #[error("the recording's configuration")]
+    Config(#[from] ConfigError),
+    #[error("{0}: the recording has no images (record.images = false): nothing to replay")]
+    NoImages(String),
+    #[error("frame")]
+    Frame(#[from] FrameError),
+    #[error("engine")]
+    Engine(#[from] EngineError),
+    #[error("perception")]
+    Perception(#[from] PerceptionError),
+    #[error("decision")]
+    Decision(#[from] DecisionConfigError),
+    #[error("CAN configuration")]
+    Can(#[from] CanConfigError),
+}
+
+/// Where a replay first differs from its recording.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Divergence {
+    /// `perception`, `speed`, `command`, `recording`.
+    pub what: &'static str,
+    /// Seconds after the recording's first pair.
+    pub t: f64,
+    pub generation: Option<u64>,
+    pub detail: String,
+}
+
+/// What `flyd replay --mcap` prints.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RecordedSummary {
+    pub recording: String,
+    pub seed: u64,
+    pub frames: [u64; 2],
+    pub pairs: usize,
+    pub generations: u64,
+    /// Snapshots the decider was fed, compared.
+    pub snapshots: usize,
+    pub snapshots_identical: usize,
+    pub commands_recorded: usize,
+    pub commands_replayed: usize,
+    /// `FLYD_Command` frames equal byte for byte, in order.
+    pub commands_identical: usize,
+    /// Seconds after the first pair (as every time here).
+    pub first_stop_s: Option<f64>,
+    /// Commands as `t_s:COMMAND` where the command changed.
+    pub changes: Vec<String>,
+    /// `None`: reproduced bit for bit.
+    pub divergence: Option<Divergence>,
+}
+
+impl RecordedSummary {
+    pub fn reproduced(&self) -> bool {
+        self.divergence.is_none()
+    }
+}
+
+/// What one replayed generation produced that the decision reads.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Outcome {
+    global_warning: f64,
+    obstacle: Option<f64>,
+}
+
+/// Replays `path`; `config` overrides the attached configuration, `seed` its seed.
+pub fn replay(
+    path: &Path,
+    config: Option<&Path>,
+    seed: Option<u64>,
+) -> Result<RecordedSummary, RecordedError> {
+    let recording = Recording::open(path)?;
+    let shown = path.display().to_string();
+    let mut config = match config {
+        Some(file) => crate::config::check(file)?,
+        None => {
+            let text = recording
+                .config_text()?
+                .ok_or_else(|| RecordedError::NoConfig(shown.clone()))?;
+            let meta = recording.metadata()?;
+            let origin = meta
+                .get("config_path")
+                .map_or_else(|| path.to_path_buf(), std::path::PathBuf::from);
+            DaemonConfig::from_toml(&text, &origin)?
+        }
+    };
+    if let Some(seed) = seed {
+        config.engine.seed = seed;
+    }
+    let events = recording.events()?;
+    if events.images == [0, 0] {
+        return Err(RecordedError::NoImages(shown));
+    }
+    let mut summary = RecordedSummary {
+        recording: shown,
+        seed: config.engine.seed,
+        frames: events.images,
+        pairs: events.pairs.len(),
+        generations: 0,
+        snapshots: 0,
+        snapshots_identical: 0,
+        commands_recorded: 0,
+        commands_replayed: 0,
+        commands_identical: 0,
+        first_stop_s: None,
+        changes: Vec::new(),
+        divergence: None,
+    };
+    let start = events
+        .pairs
+        .first()
+        .map_or(0, |p| p.left_ns.min(p.right_ns));
+    let outcomes = replay_perception(&recording, &config, &events.pairs, start, &mut summary)?;
+    replay_decisions(&config, &events, &outcomes, start, &mut summary)?;
+    Ok(summary)
+}
+
+/// Runs the perception over the recorded pairs; the outcome of every generation, by number
+/// (index 0 unused).
+fn replay_perception(
+    recording: &Recording,
+    config: &DaemonConfig,
+    pairs: &[PairEvent],
+    start: u64,
+    summary: &mut RecordedSummary,
+) -> Result<Vec<Option<Outcome>>, RecordedError> {
+    let rig = config.load_rig()?;
+    let (w, h) = (config.cameras.width, config.cameras.height);
+    let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
+        .with_warmup(config.evolution.warmup_generations);
+    let mut stereo = StereoFrame::new(PreparedImage::new(w, h)?, PreparedImage::new(w, h)?, 0);
+    let mut outcomes: Vec<Option<Outcome>> = vec![None];
+    let mut pending: [VecDeque<Frame>; 2] = [VecDeque::new(), VecDeque::new()];
+    let mut next = 0;
+    let mut generation = 0;
+    let mut frames = recording.frames()?;
+    let mut exhausted = false;
+    while next < pairs.len() {
+        let pair = pairs[next];
+        let wanted = [pair.left_ns, pair.right_ns];
+        // Read frames until both of this pair's are there (or the recording ends).
+        let found = loop {
+            for (side, queue) in pending.iter_mut().enumerate() {
+                while queue.front().is_some_and(|f| f.timestamp_ns < wanted[side]) {
+                    queue.pop_front();
+                }
+            }
+            let have = |side: usize| {
+                pending[side]
+                    .front()
+                    .is_some_and(|f| f.timestamp_ns == wanted[side])
+            };
+            if have(0) && have(1) {
+                break true;
+            }
+            let passed = |side: usize| pending[side].front().is_some();
+            if exhausted || (!have(0) && passed(0)) || (!have(1) && passed(1)) {
+                break false;
+            }
+            match frames.next() {
+                Some(frame) => {
+                    let frame = frame?;
+                    pending[frame.side as usize].push_back(frame);
+                }
+                None => exhausted = true,
+            }
+        };
+        if !found {
+            summary.divergence = Some(Divergence {
+                what: "recording",
+                t: secs_after(pair.left_ns, start),
+                generation: Some(pair.generation),
+                detail: format!(
+                    "the frames of pair {} (left {} ns, right {} ns) are not in the recording \
+                     (the recorder dropped them): the replay stops there",
+                    pair.pair_id, pair.left_ns, pair.right_ns
+                ),
+            });
+            break;
+        }
+        // The generations the daemon ran on the previous pair before this one came.
+        while generation + 1 < pair.generation && next > 0 {
+            generation = step(&mut perception, &stereo, &mut outcomes)?;
+        }
+        for side in [Side::Left, Side::Right] {
+            if let Some(frame) = pending[side as usize].pop_front() {
+                let image = match side {
+                    Side::Left => &mut stereo.left,
+                    Side::Right => &mut stereo.right,
+                };
+                image.prepare(frame.format, &frame.pixels)?;
+            }
+        }
+        stereo.id = pair.pair_id;
+        if let Some(p) = pair.predict {
+            perception.predict(
+                VehicleMotion {
+                    speed: p.speed,
+                    yaw_rate: p.yaw_rate,
+                },
+                p.dt,
+            );
+        }
+        generation = step(&mut perception, &stereo, &mut outcomes)?;
+        if generation != pair.generation {
+            summary.divergence = Some(Divergence {
+                what: "recording",
+                t: secs_after(pair.left_ns, start),
+                generation: Some(pair.generation),
+                detail: format!(
+                    "pair {} was first evolved at generation {} in the recording, {} here",
+                    pair.pair_id, pair.generation, generation
+                ),
+            });
+            break;
+        }
+        next += 1;
+    }
+    summary.generations = generation;
+    Ok(outcomes)
+}
+
+fn step(
+    perception: &mut Perception,
+    stereo: &StereoFrame,
+    outcomes: &mut Vec<Option<Outcome>>,
+) -> Result<u64, RecordedError> {
+    let report = perception.step(stereo)?;
+    let g = report.stats.generation;
+    let outcome = Outcome {
+        global_warning: report.stats.global_warning,
+        obstacle: report.tracked.confirmed().map(|o| o.distance),
+    };
+    // Generations count up by one from 1: this is the next slot.
+    if usize::try_from(g).is_ok_and(|i| i == outcomes.len()) {
+        outcomes.push(Some(outcome));
+    }
+    Ok(g)
+}
+
+/// Same bits, for the comparison of a replayed value with a recorded one; JSON keeps no NaN
+/// or infinity (they are recorded as null, read back as NaN), so any two non-finite values
+/// compare equal.
+fn same(a: f64, b: f64) -> bool {
+    a.to_bits() == b.to_bits() || (!a.is_finite() && !b.is_finite())
+}
+
+fn same_opt(a: Option<f64>, b: Option<f64>) -> bool {
+    match (a, b) {
+        (Some(a), Some(b)) => same(a, b),
+        (None, None) => true,
+        _ => false,
+    }
+}
+
+fn replay_decisions(
+    config: &DaemonConfig,
+    events: &crate::record::read::Events,
+    outcomes: &[Option<Outcome>],
+    start: u64,
+    summary: &mut RecordedSummary,
+) -> Result<(), RecordedError> {
+    let mut decider = Decider::new(config.decision)?;
+    let bus = MemoryBus::new(ManualClock::new(Duration::ZERO));
+    let mut tx = Transmitter::new(bus.clone(), config.can.messages)?;
+    let command_id = config.can.messages.command.id;
+    let sent: Vec<&crate::record::topics::CanEvent> =
+        events.sent.iter().filter(|e| e.id == command_id).collect();
+    summary.commands_recorded = sent.len();
+    let mut monitor = config.motion().map(MotionMonitor::new);
+    let assumed = config.vehicle.assumed_speed;
+    let mut worst: Option<DecisionInput> = None;
+    let diverge = |summary: &mut RecordedSummary, d: Divergence| {
+        if summary.divergence.is_none() {
+            summary.divergence = Some(d);
+        }
+    };
+    let outcome = |g: u64| {
+        outcomes
+            .get(usize::try_from(g).unwrap_or(usize::MAX))
+            .copied()
+            .flatten()
+    };
+    for event in &events.control {
+        match event {
+            ControlEvent::Received(frame) => {
+                if let Some(m) = monitor.as_mut()
+                    && frame.id == config.can.messages.motion.id
+                {
+                    let data = unhex(&frame.data);
+                    let _ = m.receive(&data, Duration::from_nanos(frame.t_ns));
+                }
+            }
+            ControlEvent::Perception(p) => {
+                if p.warming_up {
+                    continue;
+                }
+                let t = Duration::from_nanos(p.t_ns);
+                let Some(o) = outcome(p.generation) else {
+                    diverge(
+                        summary,
+                        Divergence {
+                            what: "recording",
+                            t: secs_after(nanos(t), start),
+                            generation: Some(p.generation),
+                            detail: "a snapshot of a generation the replay did not run".into(),
+                        },
+                    );
+                    break;
+                };
+                summary.snapshots += 1;
+                if same(o.global_warning, p.global_warning) && same_opt(o.obstacle, p.obstacle_m) {
+                    summary.snapshots_identical += 1;
+                } else {
+                    diverge(
+                        summary,
+                        Divergence {
+                            what: "perception",
+                            t: secs_after(nanos(t), start),
+                            generation: Some(p.generation),
+                            detail: format!(
+                                "global warning {} / obstacle {:?} m recorded, {} / {:?} replayed",
+                                p.global_warning, p.obstacle_m, o.global_warning, o.obstacle
+                            ),
+                        },
+                    );
+                }
+                if let Some(m) = &monitor {
+                    let speed = m.decision_speed(t, assumed);
+                    if !same(speed, p.speed) {
+                        diverge(
+                            summary,
+                            Divergence {
+                                what: "speed",
+                                t: secs_after(nanos(t), start),
+                                generation: Some(p.generation),
+                                detail: format!(
+                                    "the recorded VCU_Motion frames give {speed} m/s, the daemon \
+                                 decided at {} m/s",
+                                    p.speed
+                                ),
+                            },
+                        );
+                    }
+                }
+                let input = DecisionInput {
+                    global_warning: o.global_warning,
+                    latency: p.latency,
+                    ..DecisionInput::at_speed(o.obstacle, p.speed)
+                };
+                worst = Some(worst.map_or(input, |w| w.worst(input)));
+            }
+            ControlEvent::Decision(d) => {
+                let t = Duration::from_nanos(d.t_ns);
+                let untrusted = DecisionInput {
+                    global_warning: f64::NAN,
+                    ..DecisionInput::at_speed(None, f64::NAN)
+                };
+                let (decision, warning) = match d.from {
+                    InputFrom::Shutdown => (decider.shutdown(), d.global_warning),
+                    from => {
+                        let input = match from {
+                            InputFrom::Taken => worst.take().unwrap_or(untrusted),
+                            InputFrom::Latest => {
+                                let o = d.latest_generation.and_then(outcome);
+                                match o {
+                                    Some(o) => DecisionInput {
+                                        global_warning: o.global_warning,
+                                        latency: d.latest_latency.unwrap_or(f64::NAN),
+                                        ..DecisionInput::at_speed(
+                                            o.obstacle,
+                                            d.latest_speed.unwrap_or(f64::NAN),
+                                        )
+                                    },
+                                    None => untrusted,
+                                }
+                            }
+                            _ => untrusted,
+                        };
+                        let decision = decider.update(
+                            DecisionInput {
+                                faults: FaultBits::from_bits(d.faults as u8),
+                                ..input
+                            },
+                            t,
+                        );
+                        (decision, input.global_warning)
+                    }
+                };
+                let _ = tx.send_command(&CommandMsg::of(&decision, warning));
+                let replayed = bus.take_frames();
+                let i = summary.commands_replayed;
+                summary.commands_replayed += 1;
+                if decision.changed {
+                    summary.changes.push(format!(
+                        "{:.3}:{}",
+                        secs_after(nanos(t), start),
+                        decision.command.name()
+                    ));
+                }
+                if decision.command == flyd_core::decision::Command::Stop
+                    && summary.first_stop_s.is_none()
+                {
+                    summary.first_stop_s = Some(secs_after(nanos(t), start));
+                }
+                let recorded = sent.get(i).map(|e| unhex(&e.data));
+                let mine = replayed.last().map(|f| f.data.clone());
+                if recorded.is_some() && recorded == mine {
+                    summary.commands_identical += 1;
+                } else {
+                    diverge(
+                        summary,
+                        Divergence {
+                            what: "command",
+                            t: secs_after(nanos(t), start),
+                            generation: None,
+                            detail: format!(
+                                "command {} ({} {}): sent {} recorded, {} replayed ({} {})",
+                                i + 1,
+                                d.command,
+                                d.reason,
+                                recorded
+                                    .map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
+                                mine.map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
+                                decision.command.name(),
+                                decision.reason.name(),
+                            ),
+                        },
+                    );
+                }
+            }
+        }
+    }
+    if summary.commands_replayed != summary.commands_recorded {
+        diverge(
+            summary,
+            Divergence {
+                what: "command",
+                t: f64::NAN,
+                generation: None,
+                detail: format!(
+                    "{} FLYD_Command frames recorded, {} decisions replayed",
+                    summary.commands_recorded, summary.commands_replayed
+                ),
+            },
+        );
+    }
+    Ok(())
+}
+
+/// Seconds from `start` to `ns` (both clock nanoseconds).
+fn secs_after(ns: u64, start: u64) -> f64 {
+    (ns as f64 - start as f64) * 1e-9
+}
+
+/// The bytes of a candump-style hex payload (odd or invalid digits are dropped).
+fn unhex(text: &str) -> Vec<u8> {
+    text.as_bytes()
+        .chunks_exact(2)
+        .filter_map(|pair| {
+            std::str::from_utf8(pair)
+                .ok()
+                .and_then(|s| u8::from_str_radix(s, 16).ok())
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hex_round_trips() {
+        assert_eq!(
+            unhex(&crate::record::topics::hex(&[0, 0x7f, 0xff])),
+            vec![0, 0x7f, 0xff]
+        );
+    }
+
+    #[test]
+    fn same_compares_bits_and_nan_equals_nan() {
+        assert!(same(f64::NAN, f64::NAN));
+        assert!(!same(0.1 + 0.2, 0.3));
+        assert!(same_opt(None, None));
+        assert!(!same_opt(Some(1.0), None));
+    }
+}

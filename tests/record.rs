@@ -1,0 +1,221 @@
+//! Recording (`flyd run --record`) and its replay (`flyd replay --mcap`), end to end through
+//! the real binary on the mock demo:
+//! - the recording is read back by third-party readers (Python `mcap` with
+//!   `mcap-protobuf-support`, tests/record/check_recording.py): channels, schemas, message
+//!   counts against the frames, pairs, generations, snapshots and commands the daemon
+//!   reported, monotonic log times, and the CAN frames equal to the `--can-log` of the run;
+//! - the replay reproduces every recorded command frame byte for byte, and another seed does
+//!   not (the comparison can fail).
+//!
+//! Needs target/py (scripts/prereqs installs it); without it the reader check fails with
+//! a message, unless FLYD_ALLOW_NO_PY is set, in which case it prints SKIP.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+fn python() -> Option<PathBuf> {
+    let py = std::env::var_os("FLYD_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo("target/py/bin/python3"));
+    let ok = Command::new(&py)
+        .args(["-c", "import mcap, mcap_protobuf"])
+        .status()
+        .is_ok_and(|s| s.success());
+    ok.then_some(py)
+}
+
+/// The value of `key` in the last JSON log line whose message is `message`.
+fn logged(stderr: &str, message: &str) -> serde_json::Value {
+    stderr
+        .lines()
+        .rev()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .find(|v| v["message"] == message)
+        .unwrap_or_else(|| panic!("no {message:?} log line in {stderr}"))
+}
+
+struct Recorded {
+    _dir: tempfile::TempDir,
+    mcap: PathBuf,
+    log: PathBuf,
+    stopped: serde_json::Value,
+    closed: serde_json::Value,
+}
+
+/// `flyd run` on the demo configuration with `--record` and `--can-log`.
+fn record_demo(extra_toml: &str) -> Recorded {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let config = dir.path().join("demo.toml");
+    std::fs::write(&config, format!("{text}\n{extra_toml}")).expect("write config");
+    let mcap = dir.path().join("demo.mcap");
+    let log = dir.path().join("demo.log");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("run")
+        .arg("--config")
+        .arg(&config)
+        .arg("--record")
+        .arg(&mcap)
+        .arg("--can-log")
+        .arg(&log)
+        .output()
+        .expect("flyd runs");
+    // With the CAN log in a file, the logs go to stdout (JSON lines off a terminal).
+    let logs =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "flyd run failed: {logs}");
+    Recorded {
+        stopped: logged(&logs, "flyd stopped"),
+        closed: logged(&logs, "recording closed"),
+        _dir: dir,
+        mcap,
+        log,
+    }
+}
+
+#[test]
+fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit() {
+    let r = record_demo("");
+    let stopped = &r.stopped;
+    assert_eq!(r.closed["failed"], false, "{}", r.closed);
+    assert_eq!(stopped["ended_by"], "EndOfStream", "{stopped}");
+    assert!(
+        stopped["generations"].as_u64().unwrap_or(0) > 300,
+        "{stopped}"
+    );
+
+    // The third-party readers.
+    match python() {
+        Some(py) => {
+            let expected = serde_json::json!({
+                "frames_left": stopped["frames_left"],
+                "frames_right": stopped["frames_right"],
+                "pairs": stopped["pairs"],
+                "generations": stopped["generations"],
+                "snapshots": stopped["snapshots"],
+                "commands": stopped["commands"],
+                "record_dropped": stopped["record_dropped"],
+                "flies_every": 10,
+                "flies": 5000,
+                "width": 640,
+                "height": 480,
+            });
+            let expected_file = r.mcap.with_extension("expected.json");
+            std::fs::write(&expected_file, expected.to_string()).expect("write");
+            let out = Command::new(py)
+                .arg(repo("tests/record/check_recording.py"))
+                .arg(&r.mcap)
+                .arg(&r.log)
+                .arg(&expected_file)
+                .output()
+                .expect("python runs");
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            println!("readers: {stdout}");
+            assert!(out.status.success(), "{stdout}\n{stderr}");
+        }
+        None if std::env::var_os("FLYD_ALLOW_NO_PY").is_some() => {
+            println!("SKIP: Python mcap readers not installed (scripts/prereqs makes target/py)");
+        }
+        None => panic!(
+            "Python with mcap and mcap-protobuf-support not found in target/py: run \
+             scripts/prereqs (or set FLYD_ALLOW_NO_PY=1 to skip the reader check)"
+        ),
+    }
+
+    // The replay: the same command frames, byte for byte.
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .output()
+        .expect("flyd replay runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    println!("replay: {summary}");
+    let commands = std::fs::read_to_string(&r.log)
+        .expect("can log")
+        .lines()
+        .filter(|l| {
+            l.split_whitespace()
+                .nth(2)
+                .is_some_and(|f| f.starts_with("120#"))
+        })
+        .count();
+    // FLYD_Command is 0x120 (config/flyd.dbc).
+    assert!(commands > 100, "{commands} FLYD_Command frames in the log");
+    assert_eq!(summary["commands_recorded"].as_u64(), Some(commands as u64));
+    assert_eq!(
+        summary["commands_identical"].as_u64(),
+        Some(commands as u64)
+    );
+    assert_eq!(summary["snapshots"], summary["snapshots_identical"]);
+    assert_eq!(summary["divergence"], serde_json::Value::Null);
+    assert!(
+        summary["changes"].as_array().is_some_and(|c| c
+            .iter()
+            .any(|s| s.as_str().is_some_and(|s| s.ends_with(":STOP")))),
+        "the demo's STOP is replayed: {summary}"
+    );
+
+    // Another seed is another population: the replay says where it parts.
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .arg("--seed")
+        .arg("7")
+        .output()
+        .expect("flyd replay runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "another seed must diverge");
+    assert!(
+        stderr.contains("diverges from the recording (perception)"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_recording_without_images_still_holds_the_decisions_and_cannot_be_replayed() {
+    let r = record_demo("[record]\nimages = false\nflies_every = 50\n");
+    assert_eq!(r.closed["frames_left"], 0, "{}", r.closed);
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .output()
+        .expect("flyd replay runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("has no images"), "{stderr}");
+    let size = std::fs::metadata(&r.mcap).expect("file").len();
+    println!("5 s of the demo without images: {size} bytes");
+    assert!(size < 5_000_000, "{size} bytes");
+}
+
+#[test]
+fn an_unwritable_recording_path_fails_at_start_naming_it() {
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["run", "--config"])
+        .arg(repo("config/demo.toml"))
+        .args([
+            "--record",
+            "/nonexistent/dir/x.mcap",
+            "--can-log",
+            "/dev/null",
+        ])
+        .output()
+        .expect("flyd runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("/nonexistent/dir/x.mcap"), "{stderr}");
+}
