@@ -699,6 +699,8 @@ fn scene(
 /// The live view: a Foxglove WebSocket server and its channels.
 struct Live {
     runtime: tokio::runtime::Runtime,
+    /// Holds the channels and the server's sinks (the channels only weakly refer to it).
+    _context: Arc<foxglove::Context>,
     server: foxglove::WebSocketServerHandle,
     addr: SocketAddr,
     channels: Vec<(Topic, Arc<foxglove::RawChannel>)>,
@@ -755,6 +757,7 @@ impl Live {
         tracing::info!(listen = %addr, "live view: open ws://{addr} in Foxglove");
         Ok(Self {
             runtime,
+            _context: context,
             server,
             addr,
             channels,
