@@ -99,6 +99,7 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
                 "snapshots": stopped["snapshots"],
                 "commands": stopped["commands"],
                 "record_dropped": stopped["record_dropped"],
+                "flies_skipped": r.closed["flies_skipped"],
                 "flies_every": 10,
                 "flies": 5000,
                 "width": 640,
@@ -218,4 +219,73 @@ fn an_unwritable_recording_path_fails_at_start_naming_it() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("/nonexistent/dir/x.mcap"), "{stderr}");
+}
+
+#[test]
+fn a_full_disk_stops_the_recording_not_the_perception() {
+    // /dev/full: every write fails with ENOSPC, as on a full disk.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("full.log");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["run", "--config"])
+        .arg(repo("config/demo.toml"))
+        .args(["--record", "/dev/full", "--duration", "2", "--can-log"])
+        .arg(&log)
+        .output()
+        .expect("flyd runs");
+    let logs = String::from_utf8_lossy(&out.stdout).into_owned()
+        + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "flyd drives on: {logs}");
+    assert!(logs.contains("recording stopped: cannot write"), "{logs}");
+    assert!(logs.contains("No space left on device"), "{logs}");
+    let stopped = logged(&logs, "flyd stopped");
+    assert_eq!(stopped["faults_seen"], "none", "not a fault of the perception: {stopped}");
+    // FLYD_Command every 20 ms for the 2 s.
+    let commands = std::fs::read_to_string(&log)
+        .expect("can log")
+        .lines()
+        .filter(|l| l.contains(" 120#"))
+        .count();
+    assert!(commands >= 80, "{commands} commands in 2 s");
+}
+
+#[test]
+fn rotation_splits_the_recording_into_files_that_each_stand_alone() {
+    let r = record_demo("[record]\nrotate_mb = 16\n");
+    let files: Vec<PathBuf> = r.closed["files"]
+        .as_str()
+        .and_then(|s| serde_json::from_str::<Vec<String>>(s).ok())
+        .unwrap_or_default()
+        .into_iter()
+        .map(PathBuf::from)
+        .collect();
+    assert!(files.len() >= 5, "{}", r.closed);
+    assert_eq!(files[0], r.mcap);
+    assert_eq!(files[1], r.mcap.with_file_name("demo.1.mcap"));
+    let mut images = 0;
+    for file in &files {
+        let data = std::fs::read(file).expect("part");
+        let summary = mcap::Summary::read(&data)
+            .expect("a complete MCAP file")
+            .expect("with a summary");
+        assert_eq!(summary.channels.len(), 12, "{}", file.display());
+        assert!(
+            summary.attachment_indexes.iter().any(|a| a.name == "config.toml"),
+            "{}",
+            file.display()
+        );
+        let mut calibrations = 0;
+        for m in mcap::MessageStream::new(&data).expect("messages") {
+            let m = m.expect("message");
+            match m.channel.topic.as_str() {
+                "/camera/left/image" | "/camera/right/image" => images += 1,
+                "/camera/left/calibration" | "/camera/right/calibration" => calibrations += 1,
+                _ => {}
+            }
+        }
+        assert_eq!(calibrations, 2, "each part carries both calibrations: {}", file.display());
+    }
+    let frames = r.stopped["frames_left"].as_u64().unwrap_or(0)
+        + r.stopped["frames_right"].as_u64().unwrap_or(0);
+    assert_eq!(images, frames, "no frame lost between parts");
 }

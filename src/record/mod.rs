@@ -90,8 +90,12 @@ pub enum Record {
 #[derive(Debug, Default)]
 pub struct RecordCounters {
     pub written: AtomicU64,
-    /// Records dropped: the queue was full, or no buffer was free.
+    /// Records dropped: the queue was full, or no buffer was free (a replay of the recording
+    /// stops where one is missing).
     pub dropped: AtomicU64,
+    /// Populations not recorded because the writer was still busy with the previous ones
+    /// (they only show the flies; a replay does not need them).
+    pub flies_skipped: AtomicU64,
     /// Bytes handed to the file(s), uncompressed payloads.
     pub bytes: AtomicU64,
     /// The recording stopped on a write error.
@@ -281,7 +285,7 @@ impl Recorder {
 
     fn fly_fields(&self, generation: u64, at: Duration, p: FlyFields<'_>) {
         let Some(mut buffer) = self.flies.take() else {
-            self.dropped();
+            self.counters.flies_skipped.fetch_add(1, Ordering::Relaxed);
             return;
         };
         let n = p.len().min(buffer.len() / FLY_FLOATS);
@@ -294,8 +298,14 @@ impl Recorder {
             flies: n,
             points: buffer,
         };
-        if let Some(Record::Flies { points, .. }) = self.send(record) {
-            self.flies.give(points);
+        match self.queue.try_send(record) {
+            Ok(()) => {}
+            Err(TrySendError::Full(r) | TrySendError::Disconnected(r)) => {
+                self.counters.flies_skipped.fetch_add(1, Ordering::Relaxed);
+                if let Record::Flies { points, .. } = r {
+                    self.flies.give(points);
+                }
+            }
         }
     }
 

@@ -115,8 +115,22 @@ pub fn spawn_writer(
         calibration(&rig.left, "left"),
         calibration(&rig.right, "right"),
     ];
+    // A path that cannot be created is a configuration error (flyd does not start); a file
+    // that cannot be written (a full disk) is the recorder's fault: flyd drives on without.
     let file = match &options.path {
-        Some(path) => Some(McapFile::create(path.clone(), &options)?),
+        Some(path) => match McapFile::create(path.clone(), &options) {
+            Ok(file) => Some(file),
+            Err(e @ WriterError::Open { .. }) => {
+                counters.failed.store(true, Ordering::Relaxed);
+                tracing::error!(
+                    file = %path.display(),
+                    error = %Chain(&e),
+                    "recording stopped: cannot write (disk full?); flyd drives on without recording"
+                );
+                None
+            }
+            Err(e) => return Err(e),
+        },
         None => None,
     };
     let (live, live_addr) = match options.live {
@@ -137,6 +151,7 @@ pub fn spawn_writer(
         report: WriterReport::default(),
         parts: 0,
         scratch: Vec::new(),
+        last_scene: None,
     };
     if let Some(f) = &w.file {
         w.report.files.push(f.path.clone());
@@ -156,7 +171,12 @@ struct WriterLoop {
     report: WriterReport,
     parts: u32,
     scratch: Vec<u8>,
+    /// Log time of the last scene update.
+    last_scene: Option<u64>,
 }
+
+/// Scene updates are written at most this often (30 Hz).
+const SCENE_PERIOD_NS: u64 = 33_333_333;
 
 impl WriterLoop {
     fn run(mut self, rx: Receiver<Record>) -> WriterReport {
@@ -184,6 +204,7 @@ impl WriterLoop {
             frames_left = self.report.frames[0],
             frames_right = self.report.frames[1],
             dropped = self.counters.dropped(),
+            flies_skipped = self.counters.flies_skipped.load(Ordering::Relaxed),
             failed = self.report.failed,
             "recording closed"
         );
@@ -307,6 +328,14 @@ impl WriterLoop {
             } => {
                 let t = event.t_ns;
                 self.write_json(Topic::Perception, t, &event);
+                // The scene only shows what the perception events say: at most 30 a second.
+                if self
+                    .last_scene
+                    .is_some_and(|last| t >= last && t - last < SCENE_PERIOD_NS)
+                {
+                    return;
+                }
+                self.last_scene = Some(t);
                 let scene = scene(t, &event, obstacle, confirmed);
                 self.write_file(Topic::Scene, t, &scene);
                 if let Some(live) = &mut self.live {
