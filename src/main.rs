@@ -139,6 +139,11 @@ struct ReplayArgs {
     /// Output directory.
     #[arg(long, required_unless_present = "mcap")]
     out: Option<PathBuf>,
+    /// Also write what the replay saw, found and decided to this MCAP file (frames, flies,
+    /// road, obstacle, decisions, the FLYD_Command frames), to open in Foxglove: a KITTI
+    /// sequence or a replayed recording becomes a recording.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]
@@ -267,7 +272,21 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         let feed = feed.repeated(generations.div_ceil(per_frame));
         (Box::new(feed), generations, per_frame, 30.0)
     };
+    let recorder = match &args.record {
+        Some(path) => Some(start_offline_recording(
+            path,
+            feed.rig(),
+            params.flies,
+            args.config.as_deref(),
+            &[
+                ("source", "flyd replay"),
+                ("seed", &params.seed.to_string()),
+            ],
+        )?),
+        None => None,
+    };
     let settings = replay::Settings {
+        record: recorder.as_ref().map(|r| r.recorder.clone()),
         params,
         perception: config.perception,
         decision: config.decision,
@@ -281,6 +300,10 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         warmup_generations: config.evolution.warmup_generations,
     };
     let run = replay::run(feed.as_mut(), settings).context("replay")?;
+    if let Some(recorder) = recorder {
+        let report = recorder.finish()?;
+        tracing::debug!(messages = report.messages, "replay recorded");
+    }
     replay::write_outputs(&out, &run)?;
     let reaction = feed.first_obstacle().and_then(|f| {
         replay::Reaction::of(
@@ -295,10 +318,78 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
     Ok(())
 }
 
+/// The recorder of `flyd replay --record FILE`.
+fn start_offline_recording(
+    path: &Path,
+    rig: &flyd_core::geometry::StereoRig,
+    flies: usize,
+    config: Option<&Path>,
+    metadata: &[(&str, &str)],
+) -> Result<flyd::record::OfflineRecorder> {
+    let sizes = flyd::record::RecorderSizes {
+        queue: 1024,
+        width: rig.left.width().max(rig.right.width()),
+        height: rig.left.height().max(rig.right.height()),
+        flies,
+        images: true,
+        flies_every: flyd::config::RecordConfig::default().flies_every,
+    };
+    let config_text = config.and_then(|p| flyd_core::textfile::read(p).ok());
+    let metadata = metadata
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    Ok(flyd::record::OfflineRecorder::start(
+        path,
+        rig,
+        sizes,
+        config_text,
+        metadata,
+    )?)
+}
+
 /// `flyd replay --mcap FILE [--config C] [--seed S]`.
 fn replay_recording(path: &Path, args: &ReplayArgs) -> Result<()> {
-    let summary = replay::recorded::replay(path, args.config.as_deref(), args.seed)
+    let mut offline: Option<flyd::record::OfflineRecorder> = None;
+    let mut start = |rig: &flyd_core::geometry::StereoRig, config: &DaemonConfig| {
+        let Some(out) = &args.record else {
+            return Err(flyd::record::WriterError::Spawn(std::io::Error::other(
+                "no --record",
+            )));
+        };
+        let sizes = flyd::record::RecorderSizes {
+            queue: 1024,
+            width: config.cameras.width,
+            height: config.cameras.height,
+            flies: config.engine.flies,
+            images: true,
+            flies_every: config.record.flies_every,
+        };
+        let text = config
+            .file
+            .as_deref()
+            .and_then(|p| flyd_core::textfile::read(p).ok());
+        let metadata = [
+            (
+                "source".to_string(),
+                format!("flyd replay --mcap {}", path.display()),
+            ),
+            ("seed".to_string(), config.engine.seed.to_string()),
+        ]
+        .into_iter()
+        .collect();
+        let r = flyd::record::OfflineRecorder::start(out, rig, sizes, text, metadata)?;
+        let handle = r.recorder.clone();
+        offline = Some(r);
+        Ok(handle)
+    };
+    let record: Option<replay::recorded::StartRecording<'_>> =
+        args.record.is_some().then_some(&mut start as _);
+    let summary = replay::recorded::replay(path, args.config.as_deref(), args.seed, record)
         .with_context(|| format!("replaying {}", path.display()))?;
+    if let Some(r) = offline {
+        r.finish()?;
+    }
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
     match &summary.divergence {
         None => Ok(()),

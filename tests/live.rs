@@ -29,7 +29,9 @@ fn node_ready() -> bool {
 fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon() {
     if !node_ready() {
         if std::env::var_os("FLYD_ALLOW_NO_NODE").is_some() {
-            println!("SKIP: node or target/node (@foxglove/ws-protocol) missing: run scripts/prereqs");
+            println!(
+                "SKIP: node or target/node (@foxglove/ws-protocol) missing: run scripts/prereqs"
+            );
             return;
         }
         panic!(
@@ -41,8 +43,11 @@ fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon
     let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
     let config = dir.path().join("live.toml");
     // Port 0: the kernel picks a free one; flyd logs the address it listens on.
-    std::fs::write(&config, format!("{text}\n[live]\nlisten = \"127.0.0.1:0\"\n"))
-        .expect("write config");
+    std::fs::write(
+        &config,
+        format!("{text}\n[live]\nlisten = \"127.0.0.1:0\"\n"),
+    )
+    .expect("write config");
     let mut flyd = Command::new(env!("CARGO_BIN_EXE_flyd"))
         .arg("run")
         .arg("--config")
@@ -110,7 +115,9 @@ fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon
         t["/flyd/flies"]["fields"],
         serde_json::json!(["x", "y", "z", "fitness", "warning"])
     );
-    let command = t["/flyd/decision"]["first"]["command"].as_str().unwrap_or("");
+    let command = t["/flyd/decision"]["first"]["command"]
+        .as_str()
+        .unwrap_or("");
     assert!(["CLEAR", "SLOW", "STOP"].contains(&command), "{v}");
     assert!(v["server"].as_str().is_some_and(|s| s.starts_with("flyd")));
 

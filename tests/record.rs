@@ -168,6 +168,40 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
         "the demo's STOP is replayed: {summary}"
     );
 
+    // The replay can record itself; that recording replays bit for bit again.
+    let again = r.mcap.with_file_name("replayed.mcap");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .arg("--record")
+        .arg(&again)
+        .output()
+        .expect("flyd replay runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&again)
+        .output()
+        .expect("flyd replay runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let twice: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    assert_eq!(
+        twice["commands_identical"].as_u64(),
+        Some(commands as u64),
+        "{twice}"
+    );
+    assert_eq!(twice["changes"], summary["changes"]);
+
     // Another seed is another population: the replay says where it parts.
     let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
         .arg("replay")
@@ -233,13 +267,16 @@ fn a_full_disk_stops_the_recording_not_the_perception() {
         .arg(&log)
         .output()
         .expect("flyd runs");
-    let logs = String::from_utf8_lossy(&out.stdout).into_owned()
-        + &String::from_utf8_lossy(&out.stderr);
+    let logs =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "flyd drives on: {logs}");
     assert!(logs.contains("recording stopped: cannot write"), "{logs}");
     assert!(logs.contains("No space left on device"), "{logs}");
     let stopped = logged(&logs, "flyd stopped");
-    assert_eq!(stopped["faults_seen"], "none", "not a fault of the perception: {stopped}");
+    assert_eq!(
+        stopped["faults_seen"], "none",
+        "not a fault of the perception: {stopped}"
+    );
     // FLYD_Command every 20 ms for the 2 s.
     let commands = std::fs::read_to_string(&log)
         .expect("can log")
@@ -270,7 +307,10 @@ fn rotation_splits_the_recording_into_files_that_each_stand_alone() {
             .expect("with a summary");
         assert_eq!(summary.channels.len(), 12, "{}", file.display());
         assert!(
-            summary.attachment_indexes.iter().any(|a| a.name == "config.toml"),
+            summary
+                .attachment_indexes
+                .iter()
+                .any(|a| a.name == "config.toml"),
             "{}",
             file.display()
         );
@@ -283,9 +323,63 @@ fn rotation_splits_the_recording_into_files_that_each_stand_alone() {
                 _ => {}
             }
         }
-        assert_eq!(calibrations, 2, "each part carries both calibrations: {}", file.display());
+        assert_eq!(
+            calibrations,
+            2,
+            "each part carries both calibrations: {}",
+            file.display()
+        );
     }
     let frames = r.stopped["frames_left"].as_u64().unwrap_or(0)
         + r.stopped["frames_right"].as_u64().unwrap_or(0);
     assert_eq!(images, frames, "no frame lost between parts");
+}
+
+/// Messages per topic of an MCAP file, read with the `mcap` crate.
+fn topic_counts(path: &Path) -> std::collections::BTreeMap<String, usize> {
+    let data = std::fs::read(path).expect("recording");
+    let mut counts = std::collections::BTreeMap::new();
+    for m in mcap::MessageStream::new(&data).expect("mcap") {
+        *counts
+            .entry(m.expect("message").channel.topic.clone())
+            .or_insert(0) += 1;
+    }
+    counts
+}
+
+#[test]
+fn a_kitti_sequence_becomes_a_recording() {
+    let seq = repo("tests/fixtures/kitti/kitti_raw_2011_09_26_seq12");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mcap = dir.path().join("seq12.mcap");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--sequence")
+        .arg(&seq)
+        .arg("--calib")
+        .arg(seq.join("rig.toml"))
+        .args(["--speed", "30", "--out"])
+        .arg(dir.path())
+        .arg("--record")
+        .arg(&mcap)
+        .output()
+        .expect("flyd replay runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    let generations = summary["generations"].as_u64().expect("generations") as usize;
+    let counts = topic_counts(&mcap);
+    println!("{counts:?}");
+    assert_eq!(counts.get("/camera/left/image"), Some(&12));
+    assert_eq!(counts.get("/camera/right/image"), Some(&12));
+    assert_eq!(counts.get("/flyd/pair"), Some(&12));
+    assert_eq!(counts.get("/flyd/perception"), Some(&generations));
+    // One command a generation after the warm-up, each with its FLYD_Command frame.
+    let decisions = counts.get("/flyd/decision").copied().unwrap_or(0);
+    assert!(decisions > 0 && decisions < generations, "{decisions}");
+    assert_eq!(counts.get("/can/tx"), Some(&decisions));
+    assert_eq!(counts.get("/flyd/flies"), Some(&(generations / 10)));
 }

@@ -51,7 +51,8 @@ use super::ring::RingCounters;
 use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
 use super::threads::Shutdown;
-use crate::record::topics::{DecisionEvent, InputFrom, PerceptionEvent, StatsEvent, String8};
+use crate::record::Observed;
+use crate::record::topics::{InputFrom, StatsEvent};
 use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
 use flyd_core::can::messages::{CommandMsg, ObstacleMsg, StatusMsg};
 use flyd_core::can::{CanConfig, Transmitter};
@@ -419,35 +420,21 @@ impl<B: CanBus> ControlThread<B> {
         input: &DecisionInput,
         now: Duration,
     ) {
-        let Some(recorder) = &self.recorder else {
-            return;
-        };
-        let candidate = snapshot.tracked.obstacle;
-        let road = snapshot.road;
-        let event = PerceptionEvent {
-            seq: next_seq(s),
-            t_ns: crate::record::nanos(now),
-            generation: snapshot.generation,
-            warming_up: snapshot.warming_up,
-            global_warning: snapshot.global_warning,
-            obstacle_m: input.obstacle,
-            candidate_m: candidate.map(|o| o.distance),
-            candidate_lateral_m: candidate.map(|o| o.lateral),
-            speed: input.speed,
-            latency: input.latency,
-            road_height_m: road.plane.height,
-            road_slope_z: road.plane.slope_z,
-            road_slope_x: road.plane.slope_x,
-            road_measured: road.measured(),
-            matched: snapshot.matched,
-            generation_us: snapshot.generation_time.as_secs_f64() * 1e6,
-        };
-        let obstacle = candidate.map(|o| [o.distance, o.lateral, o.bottom, o.top]);
-        recorder.perception(event, obstacle, snapshot.tracked.confirmed);
+        if let Some(recorder) = &self.recorder {
+            let observed = Observed {
+                generation: snapshot.generation,
+                warming_up: snapshot.warming_up,
+                global_warning: snapshot.global_warning,
+                matched: snapshot.matched,
+                generation_time: snapshot.generation_time,
+                road: &snapshot.road,
+                tracked: &snapshot.tracked,
+            };
+            recorder.snapshot(next_seq(s), now, observed, input);
+        }
     }
 
     /// Records a command decided at `now` from `input` (which came `from` there).
-    #[allow(clippy::too_many_arguments)]
     fn record_decision(
         &self,
         s: &mut Loop,
@@ -457,26 +444,10 @@ impl<B: CanBus> ControlThread<B> {
         input: &DecisionInput,
         decision: &flyd_core::decision::Decision,
     ) {
-        let Some(recorder) = &self.recorder else {
-            return;
-        };
-        let event = DecisionEvent {
-            seq: next_seq(s),
-            t_ns: crate::record::nanos(now),
-            from,
-            latest_generation: latest.map(|(g, _)| g),
-            latest_speed: latest.map(|(_, i)| i.speed),
-            latest_latency: latest.map(|(_, i)| i.latency),
-            faults: u32::from(s.faults.bits()),
-            command: String8::new(decision.command.name()),
-            reason: String8::new(decision.reason.name()),
-            changed: decision.changed,
-            global_warning: input.global_warning,
-            obstacle_m: input.obstacle,
-            speed: input.speed,
-            state: String8::new(s.state.name()),
-        };
-        recorder.decision(event);
+        if let Some(recorder) = &self.recorder {
+            let seq = next_seq(s);
+            recorder.command(seq, now, from, latest, s.faults, s.state, input, decision);
+        }
     }
 
     /// Where the decision's speed comes from, for the logs.

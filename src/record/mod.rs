@@ -154,6 +154,8 @@ pub struct Recorder {
     images: bool,
     /// Record the flies every this many generations (`record.flies_every`).
     flies_every: u64,
+    /// Wait for room instead of dropping (an offline run: a replay that records).
+    wait: bool,
 }
 
 /// What the writer thread gets besides the queue: the pools to give buffers back to.
@@ -197,8 +199,68 @@ pub fn channel(sizes: RecorderSizes) -> (Recorder, Receiver<Record>, Returns) {
         counters: Arc::new(RecordCounters::default()),
         images: sizes.images,
         flies_every: sizes.flies_every.max(1),
+        wait: false,
     };
     (recorder, rx, Returns { frames, flies })
+}
+
+/// A recording written by an offline run (`flyd replay --record`): the writer thread as the
+/// daemon's, but its producers wait for room instead of dropping (nothing real-time waits on
+/// them).
+pub struct OfflineRecorder {
+    pub recorder: Recorder,
+    writer: writer::Writer,
+}
+
+impl OfflineRecorder {
+    pub fn start(
+        path: &std::path::Path,
+        rig: &flyd_core::geometry::StereoRig,
+        sizes: RecorderSizes,
+        config_text: Option<String>,
+        metadata: std::collections::BTreeMap<String, String>,
+    ) -> Result<Self, WriterError> {
+        let (mut recorder, rx, returns) = channel(sizes);
+        recorder.wait = true;
+        let options = RecordOptions {
+            path: Some(path.to_path_buf()),
+            rotate_bytes: None,
+            rotate_after: None,
+            compression: true,
+            live: None,
+            config_text,
+            metadata,
+        };
+        let writer = spawn_writer(options, rig, rx, returns, recorder.counters().clone())?;
+        if recorder.counters().has_failed() {
+            return Err(WriterError::Create {
+                path: path.display().to_string(),
+                error: std::io::Error::other("the file cannot be written"),
+            });
+        }
+        Ok(Self { recorder, writer })
+    }
+
+    /// Waits for the writer to write everything and close the file.
+    pub fn finish(self) -> Result<writer::WriterReport, WriterError> {
+        let Self { recorder, writer } = self;
+        let failed = recorder.counters().clone();
+        drop(recorder);
+        let report = writer
+            .handle
+            .join()
+            .map_err(|_| WriterError::Spawn(std::io::Error::other("flyd-record panicked")))?;
+        if failed.has_failed() {
+            return Err(WriterError::Create {
+                path: report
+                    .files
+                    .first()
+                    .map_or_else(String::new, |p| p.display().to_string()),
+                error: std::io::Error::other("a write failed (see the log)"),
+            });
+        }
+        Ok(report)
+    }
 }
 
 impl Recorder {
@@ -214,6 +276,9 @@ impl Recorder {
     /// Hands `record` over without waiting; a full queue drops it (counted, logged once per
     /// episode). Returns the record when it was not taken (its buffer goes back to a pool).
     fn send(&self, record: Record) -> Option<Record> {
+        if self.wait {
+            return self.queue.send(record).err().map(|e| e.into_inner());
+        }
         match self.queue.try_send(record) {
             Ok(()) => {
                 if self.counters.dropping.swap(false, Ordering::Relaxed) {
@@ -252,7 +317,12 @@ impl Recorder {
         if !self.images {
             return;
         }
-        let Some(mut buffer) = self.frames.take() else {
+        let taken = if self.wait {
+            self.frames.free.recv().ok()
+        } else {
+            self.frames.take()
+        };
+        let Some(mut buffer) = taken else {
             self.dropped();
             return;
         };
@@ -284,7 +354,12 @@ impl Recorder {
     }
 
     fn fly_fields(&self, generation: u64, at: Duration, p: FlyFields<'_>) {
-        let Some(mut buffer) = self.flies.take() else {
+        let taken = if self.wait {
+            self.flies.free.recv().ok()
+        } else {
+            self.flies.take()
+        };
+        let Some(mut buffer) = taken else {
             self.counters.flies_skipped.fetch_add(1, Ordering::Relaxed);
             return;
         };
@@ -298,9 +373,16 @@ impl Recorder {
             flies: n,
             points: buffer,
         };
-        match self.queue.try_send(record) {
-            Ok(()) => {}
-            Err(TrySendError::Full(r) | TrySendError::Disconnected(r)) => {
+        let refused = if self.wait {
+            self.queue.send(record).err().map(|e| e.into_inner())
+        } else {
+            self.queue.try_send(record).err().map(|e| match e {
+                TrySendError::Full(r) | TrySendError::Disconnected(r) => r,
+            })
+        };
+        match refused {
+            None => {}
+            Some(r) => {
                 self.counters.flies_skipped.fetch_add(1, Ordering::Relaxed);
                 if let Record::Flies { points, .. } = r {
                     self.flies.give(points);
@@ -372,6 +454,85 @@ impl<'a> From<&'a Population> for FlyFields<'a> {
             fitness: &p.fitness,
             warning: &p.warning,
         }
+    }
+}
+
+/// What a snapshot (a generation's outcome) says, as recorded: `generation_time` is the
+/// generation's wall time.
+#[derive(Debug, Clone, Copy)]
+pub struct Observed<'a> {
+    pub generation: u64,
+    pub warming_up: bool,
+    pub global_warning: f64,
+    pub matched: f64,
+    pub generation_time: Duration,
+    pub road: &'a flyd_core::perception::RoadEstimate,
+    pub tracked: &'a flyd_core::perception::Tracked,
+}
+
+impl Recorder {
+    /// A snapshot fed to the decider as `input`, at `t` (control-thread event `seq`).
+    pub fn snapshot(
+        &self,
+        seq: u64,
+        t: Duration,
+        o: Observed<'_>,
+        input: &flyd_core::decision::DecisionInput,
+    ) {
+        let candidate = o.tracked.obstacle;
+        let plane = o.road.plane;
+        let event = PerceptionEvent {
+            seq,
+            t_ns: nanos(t),
+            generation: o.generation,
+            warming_up: o.warming_up,
+            global_warning: o.global_warning,
+            obstacle_m: input.obstacle,
+            candidate_m: candidate.map(|c| c.distance),
+            candidate_lateral_m: candidate.map(|c| c.lateral),
+            speed: input.speed,
+            latency: input.latency,
+            road_height_m: plane.height,
+            road_slope_z: plane.slope_z,
+            road_slope_x: plane.slope_x,
+            road_measured: o.road.measured(),
+            matched: o.matched,
+            generation_us: o.generation_time.as_secs_f64() * 1e6,
+        };
+        let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);
+        self.perception(event, obstacle, o.tracked.confirmed);
+    }
+
+    /// A command decided at `t` from `input` (which came `from` there; `latest`: the
+    /// snapshot's generation and input when it was the newest one again).
+    #[allow(clippy::too_many_arguments)]
+    pub fn command(
+        &self,
+        seq: u64,
+        t: Duration,
+        from: topics::InputFrom,
+        latest: Option<(u64, flyd_core::decision::DecisionInput)>,
+        faults: flyd_core::status::FaultBits,
+        state: flyd_core::status::State,
+        input: &flyd_core::decision::DecisionInput,
+        decision: &flyd_core::decision::Decision,
+    ) {
+        self.decision(DecisionEvent {
+            seq,
+            t_ns: nanos(t),
+            from,
+            latest_generation: latest.map(|(g, _)| g),
+            latest_speed: latest.map(|(_, i)| i.speed),
+            latest_latency: latest.map(|(_, i)| i.latency),
+            faults: u32::from(faults.bits()),
+            command: topics::String8::new(decision.command.name()),
+            reason: topics::String8::new(decision.reason.name()),
+            changed: decision.changed,
+            global_warning: input.global_warning,
+            obstacle_m: input.obstacle,
+            speed: input.speed,
+            state: topics::String8::new(state.name()),
+        });
     }
 }
 

@@ -105,6 +105,8 @@ pub enum ReplayError {
     Perception(#[from] PerceptionError),
     #[error("decision")]
     Decision(#[from] DecisionConfigError),
+    #[error("CAN encoding")]
+    Can(#[source] flyd_core::can::CanConfigError),
 }
 
 /// How a replay runs.
@@ -129,6 +131,8 @@ pub struct Settings {
     pub sensor: SensorConfig,
     /// Generations before the decider takes input.
     pub warmup_generations: u64,
+    /// Write what the replay sees and decides to a recording (`flyd replay --record`).
+    pub record: Option<crate::record::Recorder>,
 }
 
 /// Generations the daemon runs per frame of a video at `fps` that changes every frame (a
@@ -200,13 +204,25 @@ impl Replay {
 /// Runs `settings.generations` generations of perception and the decision on `feed`, a new
 /// frame every `settings.per_frame` generations (the last frame stays once the feed has no
 /// more).
-pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, ReplayError> {
+pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, ReplayError> {
     let mut perception = Perception::new(feed.rig(), settings.params.clone(), settings.perception)?
         .with_warmup(settings.warmup_generations);
     let mut decider = Decider::new(settings.decision)?;
     let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
-    let mut frame = StereoFrame::new(PreparedImage::new(w, h)?, PreparedImage::new(rw, rh)?, 0);
+    // Taken out: the recording ends with this run (its writer waits for every handle).
+    let recorder = settings.record.take();
+    let image = |w, h| {
+        PreparedImage::new(w, h).map(|i| {
+            if recorder.is_some() {
+                i.retain_pixels()
+            } else {
+                i
+            }
+        })
+    };
+    let mut frame = StereoFrame::new(image(w, h)?, image(rw, rh)?, 0);
+    let mut recording = recorder.map(ReplayRecording::new).transpose()?;
     let mut left = RgbImage::new(w, h);
     let per_frame = settings.per_frame.max(1);
     let fps = if settings.fps.is_finite() && settings.fps > 0.0 {
@@ -221,11 +237,15 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
     let (mut health, mut sensor) = ([ImageHealth::default(); 2], SensorVerdict::default());
     for g in 0..settings.generations {
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
-        if index != Some(wanted) {
+        let mut predicted = None;
+        let new_frame = index != Some(wanted);
+        if new_frame {
             if let (Some(previous), true) = (index, settings.predict)
                 && let Some(motion) = feed.motion(previous)
             {
-                perception.predict(motion, (wanted - previous) as f64 / fps);
+                let dt = (wanted - previous) as f64 / fps;
+                perception.predict(motion, dt);
+                predicted = Some((motion, dt));
             }
             feed.load(wanted, &mut frame, &mut left)?;
             frame.id = wanted;
@@ -251,7 +271,8 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
             Some(m) if !settings.fixed_speed => m.speed.max(0.0),
             _ => settings.speed,
         };
-        let decision = if report.stats.generation > settings.warmup_generations {
+        let trusted = report.stats.generation > settings.warmup_generations;
+        let input = {
             let input = DecisionInput {
                 global_warning: report.stats.global_warning,
                 obstacle: report.tracked.confirmed().map(|o| o.distance),
@@ -264,10 +285,23 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
                 latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
                 ..DecisionInput::at_speed(None, speed)
             };
-            Some(decider.update(input, time))
-        } else {
-            None
+            input
         };
+        let decision = trusted.then(|| decider.update(input, time));
+        if let Some(rec) = recording.as_mut() {
+            let frame_time = Duration::from_secs_f64(wanted as f64 / fps);
+            if new_frame {
+                rec.frames(&frame, frame_time, report.stats.generation, predicted);
+            }
+            rec.generation(
+                &perception,
+                &report,
+                time,
+                elapsed,
+                &input,
+                decision.as_ref(),
+            );
+        }
         trace.push(TraceRow {
             frame: wanted,
             frame_name: feed.frame_name(wanted),
@@ -286,6 +320,7 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
         });
     }
     let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
+    drop(recording);
     Ok(Replay {
         perception,
         settings,
@@ -295,6 +330,113 @@ pub fn run(feed: &mut dyn FrameFeed, settings: Settings) -> Result<Replay, Repla
         frames: index.map_or(0, |i| i + 1),
         moving_feed: feed.motion(0).is_some(),
     })
+}
+
+/// What a replay hands its recorder: the frames and pairs, the flies, one snapshot and one
+/// command a generation (the replay's decider takes each generation's outcome), and each
+/// command as the `FLYD_Command` frame it encodes to.
+struct ReplayRecording {
+    recorder: crate::record::Recorder,
+    tx: flyd_core::can::Transmitter<crate::bus::MemoryBus>,
+    bus: crate::bus::MemoryBus,
+    seq: u64,
+}
+
+impl ReplayRecording {
+    fn new(recorder: crate::record::Recorder) -> Result<Self, ReplayError> {
+        let bus = crate::bus::MemoryBus::new(flyd_core::clock::ManualClock::new(Duration::ZERO));
+        let tx =
+            flyd_core::can::Transmitter::new(bus.clone(), flyd_core::can::CanConfig::default())
+                .map_err(ReplayError::Can)?;
+        Ok(Self {
+            recorder,
+            tx,
+            bus,
+            seq: 0,
+        })
+    }
+
+    fn frames(
+        &self,
+        frame: &StereoFrame,
+        at: Duration,
+        generation: u64,
+        predicted: Option<(flyd_core::motion::VehicleMotion, f64)>,
+    ) {
+        use crate::daemon::pairer::Side;
+        for (side, image) in [(Side::Left, &frame.left), (Side::Right, &frame.right)] {
+            if let Some((format, pixels)) = image.pixels() {
+                let size = (image.width(), image.height());
+                self.recorder.frame(side, at, size, format, pixels);
+            }
+        }
+        let ns = crate::record::nanos(at);
+        self.recorder.pair(
+            at,
+            crate::record::topics::PairEvent {
+                generation,
+                pair_id: frame.id,
+                left_ns: ns,
+                right_ns: ns,
+                predict: predicted.map(|(m, dt)| crate::record::topics::PredictEvent {
+                    speed: m.speed,
+                    yaw_rate: m.yaw_rate,
+                    dt,
+                }),
+            },
+        );
+    }
+
+    fn generation(
+        &mut self,
+        perception: &Perception,
+        report: &flyd_core::perception::PerceptionReport,
+        at: Duration,
+        elapsed: Duration,
+        input: &DecisionInput,
+        decision: Option<&flyd_core::decision::Decision>,
+    ) {
+        let r = &self.recorder;
+        let generation = report.stats.generation;
+        r.flies(generation, at, perception.engine().population());
+        self.seq += 1;
+        let observed = crate::record::Observed {
+            generation,
+            warming_up: decision.is_none(),
+            global_warning: report.stats.global_warning,
+            matched: report.stats.matched,
+            generation_time: elapsed,
+            road: &report.road,
+            tracked: &report.tracked,
+        };
+        r.snapshot(self.seq, at, observed, input);
+        let Some(decision) = decision else {
+            return;
+        };
+        self.seq += 1;
+        let state = if input.faults.is_empty() {
+            flyd_core::status::State::Running
+        } else {
+            flyd_core::status::State::Degraded
+        };
+        let from = crate::record::topics::InputFrom::Taken;
+        r.command(
+            self.seq,
+            at,
+            from,
+            None,
+            input.faults,
+            state,
+            input,
+            decision,
+        );
+        let msg = flyd_core::can::messages::CommandMsg::of(decision, input.global_warning);
+        if self.tx.send_command(&msg).is_ok() {
+            for f in self.bus.take_frames() {
+                r.can(true, self.seq, at, f.id, &f.data);
+            }
+        }
+    }
 }
 
 /// Every fly's ambiguity on `frame`, the engine's latest.

@@ -64,6 +64,8 @@ pub enum RecordedError {
     Decision(#[from] DecisionConfigError),
     #[error("CAN configuration")]
     Can(#[from] CanConfigError),
+    #[error("the replay's recording")]
+    Record(#[from] crate::record::WriterError),
 }
 
 /// Where a replay first differs from its recording.
@@ -111,13 +113,26 @@ impl RecordedSummary {
 struct Outcome {
     global_warning: f64,
     obstacle: Option<f64>,
+    /// For a new recording of the replay.
+    matched: f64,
+    road: flyd_core::perception::RoadEstimate,
+    tracked: flyd_core::perception::Tracked,
 }
 
-/// Replays `path`; `config` overrides the attached configuration, `seed` its seed.
+/// What the replay needs to write a recording of itself (`flyd replay --mcap --record`).
+pub type StartRecording<'a> =
+    &'a mut dyn FnMut(
+        &flyd_core::geometry::StereoRig,
+        &DaemonConfig,
+    ) -> Result<crate::record::Recorder, crate::record::WriterError>;
+
+/// Replays `path`; `config` overrides the attached configuration, `seed` its seed; `record`
+/// starts a recording of the replay (its frames, flies, snapshots and commands as replayed).
 pub fn replay(
     path: &Path,
     config: Option<&Path>,
     seed: Option<u64>,
+    record: Option<StartRecording<'_>>,
 ) -> Result<RecordedSummary, RecordedError> {
     let recording = Recording::open(path)?;
     let shown = path.display().to_string();
@@ -160,8 +175,26 @@ pub fn replay(
         .pairs
         .first()
         .map_or(0, |p| p.left_ns.min(p.right_ns));
-    let outcomes = replay_perception(&recording, &config, &events.pairs, start, &mut summary)?;
-    replay_decisions(&config, &events, &outcomes, start, &mut summary)?;
+    let recorder = match record {
+        Some(start_recording) => Some(start_recording(&config.load_rig()?, &config)?),
+        None => None,
+    };
+    let outcomes = replay_perception(
+        &recording,
+        &config,
+        &events.pairs,
+        start,
+        recorder.as_ref(),
+        &mut summary,
+    )?;
+    replay_decisions(
+        &config,
+        &events,
+        &outcomes,
+        start,
+        recorder.as_ref(),
+        &mut summary,
+    )?;
     Ok(summary)
 }
 
@@ -172,19 +205,31 @@ fn replay_perception(
     config: &DaemonConfig,
     pairs: &[PairEvent],
     start: u64,
+    recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
 ) -> Result<Vec<Option<Outcome>>, RecordedError> {
     let rig = config.load_rig()?;
     let (w, h) = (config.cameras.width, config.cameras.height);
     let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
-    let mut stereo = StereoFrame::new(PreparedImage::new(w, h)?, PreparedImage::new(w, h)?, 0);
+    let image = || {
+        PreparedImage::new(w, h).map(|i| {
+            if recorder.is_some() {
+                i.retain_pixels()
+            } else {
+                i
+            }
+        })
+    };
+    let mut stereo = StereoFrame::new(image()?, image()?, 0);
     let mut outcomes: Vec<Option<Outcome>> = vec![None];
     let mut pending: [VecDeque<Frame>; 2] = [VecDeque::new(), VecDeque::new()];
     let mut next = 0;
     let mut generation = 0;
     let mut frames = recording.frames()?;
     let mut exhausted = false;
+    // The newest pair's time: when the replayed flies are recorded.
+    let mut last_at = Duration::ZERO;
     while next < pairs.len() {
         let pair = pairs[next];
         let wanted = [pair.left_ns, pair.right_ns];
@@ -230,7 +275,7 @@ fn replay_perception(
         }
         // The generations the daemon ran on the previous pair before this one came.
         while generation + 1 < pair.generation && next > 0 {
-            generation = step(&mut perception, &stereo, &mut outcomes)?;
+            generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
         }
         for side in [Side::Left, Side::Right] {
             if let Some(frame) = pending[side as usize].pop_front() {
@@ -239,8 +284,16 @@ fn replay_perception(
                     Side::Right => &mut stereo.right,
                 };
                 image.prepare(frame.format, &frame.pixels)?;
+                if let (Some(r), Some((format, pixels))) = (recorder, image.pixels()) {
+                    let at = Duration::from_nanos(frame.timestamp_ns);
+                    r.frame(side, at, (w, h), format, pixels);
+                }
             }
         }
+        if let Some(r) = recorder {
+            r.pair(Duration::from_nanos(pair.left_ns.max(pair.right_ns)), pair);
+        }
+        last_at = Duration::from_nanos(pair.left_ns.max(pair.right_ns));
         stereo.id = pair.pair_id;
         if let Some(p) = pair.predict {
             perception.predict(
@@ -251,7 +304,7 @@ fn replay_perception(
                 p.dt,
             );
         }
-        generation = step(&mut perception, &stereo, &mut outcomes)?;
+        generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
         if generation != pair.generation {
             summary.divergence = Some(Divergence {
                 what: "recording",
@@ -274,12 +327,20 @@ fn step(
     perception: &mut Perception,
     stereo: &StereoFrame,
     outcomes: &mut Vec<Option<Outcome>>,
+    recorder: Option<&crate::record::Recorder>,
+    at: Duration,
 ) -> Result<u64, RecordedError> {
-    let report = perception.step(stereo)?;
+    let report = *perception.step(stereo)?;
     let g = report.stats.generation;
+    if let Some(r) = recorder {
+        r.flies(g, at, perception.engine().population());
+    }
     let outcome = Outcome {
         global_warning: report.stats.global_warning,
         obstacle: report.tracked.confirmed().map(|o| o.distance),
+        matched: report.stats.matched,
+        road: report.road,
+        tracked: report.tracked,
     };
     // Generations count up by one from 1: this is the next slot.
     if usize::try_from(g).is_ok_and(|i| i == outcomes.len()) {
@@ -308,6 +369,7 @@ fn replay_decisions(
     events: &crate::record::read::Events,
     outcomes: &[Option<Outcome>],
     start: u64,
+    recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
 ) -> Result<(), RecordedError> {
     let mut decider = Decider::new(config.decision)?;
@@ -398,6 +460,18 @@ fn replay_decisions(
                     latency: p.latency,
                     ..DecisionInput::at_speed(o.obstacle, p.speed)
                 };
+                if let Some(r) = recorder {
+                    let observed = crate::record::Observed {
+                        generation: p.generation,
+                        warming_up: false,
+                        global_warning: o.global_warning,
+                        matched: o.matched,
+                        generation_time: Duration::from_secs_f64(p.generation_us.max(0.0) * 1e-6),
+                        road: &o.road,
+                        tracked: &o.tracked,
+                    };
+                    r.snapshot(p.seq, t, observed, &input);
+                }
                 worst = Some(worst.map_or(input, |w| w.worst(input)));
             }
             ControlEvent::Decision(d) => {
@@ -406,8 +480,15 @@ fn replay_decisions(
                     global_warning: f64::NAN,
                     ..DecisionInput::at_speed(None, f64::NAN)
                 };
-                let (decision, warning) = match d.from {
-                    InputFrom::Shutdown => (decider.shutdown(), d.global_warning),
+                let (decision, warning, used) = match d.from {
+                    InputFrom::Shutdown => (
+                        decider.shutdown(),
+                        d.global_warning,
+                        DecisionInput {
+                            global_warning: d.global_warning,
+                            ..untrusted
+                        },
+                    ),
                     from => {
                         let input = match from {
                             InputFrom::Taken => worst.take().unwrap_or(untrusted),
@@ -434,11 +515,24 @@ fn replay_decisions(
                             },
                             t,
                         );
-                        (decision, input.global_warning)
+                        (decision, input.global_warning, input)
                     }
                 };
                 let _ = tx.send_command(&CommandMsg::of(&decision, warning));
                 let replayed = bus.take_frames();
+                if let Some(r) = recorder {
+                    let faults = FaultBits::from_bits(d.faults as u8);
+                    let state = if faults.is_empty() {
+                        flyd_core::status::State::Running
+                    } else {
+                        flyd_core::status::State::Degraded
+                    };
+                    let input = DecisionInput { faults, ..used };
+                    r.command(d.seq, t, d.from, None, faults, state, &input, &decision);
+                    for f in &replayed {
+                        r.can(true, d.seq, t, f.id, &f.data);
+                    }
+                }
                 let i = summary.commands_replayed;
                 summary.commands_replayed += 1;
                 if decision.changed {
