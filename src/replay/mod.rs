@@ -272,20 +272,17 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             _ => settings.speed,
         };
         let trusted = report.stats.generation > settings.warmup_generations;
-        let input = {
-            let input = DecisionInput {
-                global_warning: report.stats.global_warning,
-                obstacle: report.tracked.confirmed().map(|o| o.distance),
-                faults: if sensor.faults.is_empty() {
-                    FaultBits::empty()
-                } else {
-                    FaultBits::CAMERA_ERROR
-                },
-                // The evidence's age on the frames' clock, and a frame until the next.
-                latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
-                ..DecisionInput::at_speed(None, speed)
-            };
-            input
+        let input = DecisionInput {
+            global_warning: report.stats.global_warning,
+            obstacle: report.tracked.confirmed().map(|o| o.distance),
+            faults: if sensor.faults.is_empty() {
+                FaultBits::empty()
+            } else {
+                FaultBits::CAMERA_ERROR
+            },
+            // The evidence's age on the frames' clock, and a frame until the next.
+            latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
+            ..DecisionInput::at_speed(None, speed)
         };
         let decision = trusted.then(|| decider.update(input, time));
         if let Some(rec) = recording.as_mut() {
