@@ -305,7 +305,7 @@ fn rotation_splits_the_recording_into_files_that_each_stand_alone() {
         let summary = mcap::Summary::read(&data)
             .expect("a complete MCAP file")
             .expect("with a summary");
-        assert_eq!(summary.channels.len(), 12, "{}", file.display());
+        assert_eq!(summary.channels.len(), 13, "{}", file.display());
         assert!(
             summary
                 .attachment_indexes
@@ -382,4 +382,46 @@ fn a_kitti_sequence_becomes_a_recording() {
     assert!(decisions > 0 && decisions < generations, "{decisions}");
     assert_eq!(counts.get("/can/tx"), Some(&decisions));
     assert_eq!(counts.get("/flyd/flies"), Some(&(generations / 10)));
+}
+
+#[test]
+fn the_shipped_foxglove_layout_only_names_topics_and_fields_flyd_records() {
+    let text = std::fs::read_to_string(repo("config/foxglove-layout.json")).expect("layout");
+    let layout: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    let mut named = Vec::new();
+    fn walk(v: &serde_json::Value, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::String(s) if s.starts_with('/') => out.push(s.clone()),
+            serde_json::Value::Array(a) => a.iter().for_each(|v| walk(v, out)),
+            serde_json::Value::Object(o) => o.iter().for_each(|(k, v)| {
+                if k.starts_with('/') {
+                    out.push(k.clone());
+                }
+                walk(v, out);
+            }),
+            _ => {}
+        }
+    }
+    walk(&layout["configById"], &mut named);
+    assert!(named.len() >= 10, "{named:?}");
+    for path in named {
+        let (topic, field) = path.split_once('.').unwrap_or((&path, ""));
+        let known = flyd::record::topics::Topic::from_name(topic)
+            .unwrap_or_else(|| panic!("the layout names {topic}, which flyd does not record"));
+        if !field.is_empty() {
+            let (_, schema) = known.json_schema().expect("a JSON topic");
+            let schema: serde_json::Value = serde_json::from_str(&schema).expect("schema");
+            assert!(
+                schema["properties"][field].is_object(),
+                "the layout plots {path}: {topic} has no field {field}"
+            );
+        }
+    }
+    // Every panel the layout arranges is configured.
+    for id in ["Image!flydleft", "3D!flydscene", "Plot!flydwarning"] {
+        assert!(
+            layout["configById"][id].is_object() && text.matches(id).count() >= 2,
+            "{id}"
+        );
+    }
 }

@@ -10,6 +10,10 @@
 //! robotics frame (x forward, y left, z up, right-handed) converted from flyd's vehicle frame
 //! (x right, y up from the road, z forward: left-handed): `(X, Y, Z) = (z, -x, y)`.
 //!
+//! The cameras' frames (`left`, `right`: optical frames, x right, y down, z forward) are
+//! placed in `base_link` by `/tf` (`foxglove.FrameTransforms`, from the calibration), so
+//! Foxglove's Image panel draws the flies and the scene over the camera images.
+//!
 //! Log times are the daemon's clock (CLOCK_MONOTONIC, nanoseconds): an image's is the
 //! kernel's capture timestamp, an event's the moment it happened.
 
@@ -22,6 +26,7 @@ pub enum Topic {
     RightImage,
     LeftCalibration,
     RightCalibration,
+    Transforms,
     Flies,
     Scene,
     Pair,
@@ -42,11 +47,12 @@ pub enum Encoding {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 12] = [
+    pub const ALL: [Topic; 13] = [
         Topic::LeftImage,
         Topic::RightImage,
         Topic::LeftCalibration,
         Topic::RightCalibration,
+        Topic::Transforms,
         Topic::Flies,
         Topic::Scene,
         Topic::Pair,
@@ -63,6 +69,7 @@ impl Topic {
             Topic::RightImage => "/camera/right/image",
             Topic::LeftCalibration => "/camera/left/calibration",
             Topic::RightCalibration => "/camera/right/calibration",
+            Topic::Transforms => "/tf",
             Topic::Flies => "/flyd/flies",
             Topic::Scene => "/flyd/scene",
             Topic::Pair => "/flyd/pair",
@@ -84,6 +91,7 @@ impl Topic {
             | Topic::RightImage
             | Topic::LeftCalibration
             | Topic::RightCalibration
+            | Topic::Transforms
             | Topic::Flies
             | Topic::Scene => Encoding::Foxglove,
             _ => Encoding::Json,

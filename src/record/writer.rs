@@ -26,8 +26,9 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError};
 use foxglove::schemas::{
-    CameraCalibration, Color, CubePrimitive, PackedElementField, PointCloud, Pose, Quaternion,
-    RawImage, SceneEntity, SceneUpdate, Timestamp, Vector3, packed_element_field::NumericType,
+    CameraCalibration, Color, CubePrimitive, FrameTransform, FrameTransforms, PackedElementField,
+    PointCloud, Pose, Quaternion, RawImage, SceneEntity, SceneUpdate, Timestamp, Vector3,
+    packed_element_field::NumericType,
 };
 use foxglove::{Encode, PartialMetadata};
 
@@ -115,6 +116,12 @@ pub fn spawn_writer(
         calibration(&rig.left, "left"),
         calibration(&rig.right, "right"),
     ];
+    let transforms = FrameTransforms {
+        transforms: vec![
+            camera_pose(&rig.left, "left"),
+            camera_pose(&rig.right, "right"),
+        ],
+    };
     // A path that cannot be created is a configuration error (flyd does not start); a file
     // that cannot be written (a full disk) is the recorder's fault: flyd drives on without.
     let file = match &options.path {
@@ -146,6 +153,7 @@ pub fn spawn_writer(
         file,
         live,
         calibrations,
+        transforms,
         returns,
         counters,
         report: WriterReport::default(),
@@ -166,6 +174,8 @@ struct WriterLoop {
     file: Option<McapFile>,
     live: Option<Live>,
     calibrations: [CameraCalibration; 2],
+    /// Both cameras' poses in `base_link` (logged with the calibrations).
+    transforms: FrameTransforms,
     returns: Returns,
     counters: Arc<RecordCounters>,
     report: WriterReport,
@@ -292,14 +302,20 @@ impl WriterLoop {
                 self.report.frames[i] += 1;
                 let mut calib = self.calibrations[i].clone();
                 calib.timestamp = Some(timestamp_of(t));
+                let mut transforms = self.transforms.clone();
+                for tf in &mut transforms.transforms {
+                    tf.timestamp = Some(timestamp_of(t));
+                }
                 if first || self.file.as_ref().is_some_and(|f| f.needs(calib_topic)) {
                     self.write_file(calib_topic, t, &calib);
+                    self.write_file(Topic::Transforms, t, &transforms);
                 }
                 self.write_file(topic, t, &image);
                 if let Some(live) = &mut self.live
                     && live.due(topic, t)
                 {
                     live.log(calib_topic, t, &calib);
+                    live.log(Topic::Transforms, t, &transforms);
                     live.log(topic, t, &image);
                 }
             }
@@ -551,6 +567,7 @@ fn foxglove_schema(topic: Topic) -> foxglove::Schema {
         Topic::LeftImage | Topic::RightImage => RawImage::get_schema(),
         Topic::LeftCalibration | Topic::RightCalibration => CameraCalibration::get_schema(),
         Topic::Flies => PointCloud::get_schema(),
+        Topic::Transforms => FrameTransforms::get_schema(),
         _ => SceneUpdate::get_schema(),
     };
     // The well-known schemas always have one.
@@ -585,6 +602,30 @@ fn calibration(camera: &Camera, frame_id: &str) -> CameraCalibration {
         p: vec![
             k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
         ],
+    }
+}
+
+/// Where `camera`'s optical frame (`frame_id`: x right, y down, z forward) is in `base_link`.
+fn camera_pose(camera: &Camera, frame_id: &str) -> FrameTransform {
+    use nalgebra::{Matrix3, Rotation3, UnitQuaternion};
+    // vehicle (x right, y up, z forward) -> base_link (x forward, y left, z up)
+    let a = Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, 1.0, 0.0);
+    let (m, _) = camera.camera_from_vehicle_affine();
+    // p_cam = M p_vehicle + t, p_vehicle = A^T b: b = A M^T p_cam + A c.
+    let r = a * m.transpose();
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let c = camera.centre();
+    FrameTransform {
+        timestamp: None,
+        parent_frame_id: "base_link".into(),
+        child_frame_id: frame_id.into(),
+        translation: Some(base_link(c.x, c.y, c.z)),
+        rotation: Some(Quaternion {
+            x: q.i,
+            y: q.j,
+            z: q.k,
+            w: q.w,
+        }),
     }
 }
 
@@ -872,5 +913,23 @@ mod tests {
             .collect();
         assert_eq!(f, vec![10.0, -1.0, 0.5, 3.0, 0.25]);
         assert_eq!(cloud.point_stride, 20);
+    }
+
+    #[test]
+    fn a_camera_pose_maps_its_optical_axis_forward_and_its_centre_into_base_link() {
+        let rig = crate::mock::mock_rig(320, 240).expect("rig");
+        let tf = camera_pose(&rig.left, "left");
+        let q = tf.rotation.expect("rotation");
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q.w, q.x, q.y, q.z,
+        ));
+        // The optical axis (camera z) points along base_link x (forward), image down along -z.
+        let forward = q * nalgebra::Vector3::z();
+        let down = q * nalgebra::Vector3::y();
+        assert!(forward.x > 0.95, "{forward:?}");
+        assert!(down.z < -0.95, "{down:?}");
+        let t = tf.translation.expect("translation");
+        let c = rig.left.centre();
+        assert_eq!((t.x, t.y, t.z), (c.z, -c.x, c.y));
     }
 }

@@ -30,6 +30,7 @@ SCHEMAS = {
     "/camera/right/image": ("foxglove.RawImage", "protobuf"),
     "/camera/left/calibration": ("foxglove.CameraCalibration", "protobuf"),
     "/camera/right/calibration": ("foxglove.CameraCalibration", "protobuf"),
+    "/tf": ("foxglove.FrameTransforms", "protobuf"),
     "/flyd/flies": ("foxglove.PointCloud", "protobuf"),
     "/flyd/scene": ("foxglove.SceneUpdate", "protobuf"),
     "/flyd/pair": ("flyd.Pair", "jsonschema"),
