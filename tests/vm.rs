@@ -1267,3 +1267,108 @@ fn flyd_names_a_camera_with_the_wrong_format_and_raises_a_fault() {
         label_counts(&commands, "Command"),
     ));
 }
+
+/// Recording through V4L2 and vcan: flyd records (`--record`) while the pedestrian steps in;
+/// the frames it recorded (as captured from the loopback cameras and converted from YUYV)
+/// replay on the host, with the configuration it ran with, to the same `FLYD_Command` frames
+/// byte for byte, and the frames the recording says were sent are those candump saw on vcan0.
+#[test]
+fn flyd_records_through_v4l2_and_the_recording_replays_to_the_commands_seen_on_vcan0() {
+    let r = run_flyd(flyd_scenario("flyd_record"));
+    r.check_bus();
+    r.assert_exited_cleanly();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mcap = dir.path().join("drive.mcap");
+    std::fs::write(&mcap, r.run.read("drive.mcap")).expect("write the recording");
+    let data = std::fs::read(&mcap).expect("read");
+
+    // The attached configuration, beside the rig file it names, as on the guest.
+    let summary = mcap::Summary::read(&data)
+        .expect("a complete MCAP file")
+        .expect("with a summary");
+    let index = summary
+        .attachment_indexes
+        .iter()
+        .find(|a| a.name == "config.toml")
+        .expect("config.toml attached");
+    let config = mcap::read::attachment(&data, index).expect("attachment");
+    let config_file = dir.path().join("flyd.toml");
+    std::fs::write(&config_file, &config.data[..]).expect("write config");
+    let vm = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vm/config");
+    std::fs::copy(
+        vm.join("mock-rig-320x240.toml"),
+        dir.path().join("mock-rig-320x240.toml"),
+    )
+    .expect("rig");
+
+    // What the recording says was sent, against vcan0.
+    let mut sent = Vec::new();
+    let mut images = 0;
+    for m in mcap::MessageStream::new(&data).expect("messages") {
+        let m = m.expect("message");
+        match m.channel.topic.as_str() {
+            "/can/tx" => {
+                let v: serde_json::Value = serde_json::from_slice(&m.data).expect("json");
+                sent.push((
+                    v["id"].as_u64().expect("id") as u32,
+                    v["data"].as_str().expect("data").to_string(),
+                ));
+            }
+            "/camera/left/image" | "/camera/right/image" => images += 1,
+            _ => {}
+        }
+    }
+    let on_bus: Vec<(u32, String)> = r
+        .frames
+        .iter()
+        .filter(|f| f.message.starts_with("FLYD_"))
+        .map(|f| (f.id, f.data.iter().map(|b| format!("{b:02X}")).collect()))
+        .collect();
+    assert!(images > 100, "{images} images recorded");
+    assert!(sent.len() > 200, "{} frames recorded as sent", sent.len());
+    assert_eq!(
+        sent.len(),
+        on_bus.len(),
+        "frames recorded as sent vs seen on vcan0"
+    );
+    assert!(sent == on_bus, "the recorded frames differ from vcan0's");
+
+    // The replay on the host.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&mcap)
+        .arg("--config")
+        .arg(&config_file)
+        .output()
+        .expect("flyd replay runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    let commands = on_bus.iter().filter(|(id, _)| *id == 0x120).count();
+    assert_eq!(
+        s["commands_recorded"].as_u64(),
+        Some(commands as u64),
+        "{s}"
+    );
+    assert_eq!(
+        s["commands_identical"].as_u64(),
+        Some(commands as u64),
+        "{s}"
+    );
+    assert!(
+        s["changes"].as_array().is_some_and(|c| c
+            .iter()
+            .any(|x| x.as_str().is_some_and(|x| x.ends_with(":STOP")))),
+        "the pedestrian's STOP replayed: {s}"
+    );
+    r.run.report(&format!(
+        "{images} images and {} sent frames recorded (= vcan0); replayed {commands}/{commands} \
+         commands bit for bit",
+        sent.len()
+    ));
+}

@@ -37,12 +37,16 @@ flyd_event_after() {
     echo "$1 $(grep "^$((_n + 1)) " "$RESULTS/timeline.txt" | cut -d' ' -f1,2)" >>"$RESULTS/events.txt"
 }
 
-# flyd_config: writes $FLYD_DIR/flyd.toml for this machine's labelled cameras.
+# flyd_config: writes $FLYD_DIR/flyd.toml for this machine's labelled cameras, with
+# $FLYD_TOML_EXTRA (TOML tables a scenario adds) at its end.
 flyd_config() {
     mkdir -p "$FLYD_DIR"
     cp "$RESULTS/input/mock-rig-320x240.toml" "$FLYD_DIR/"
     sed -e "s#@LEFT@#$FLYD_CAM_LEFT#" -e "s#@RIGHT@#$FLYD_CAM_RIGHT#" \
         "$RESULTS/input/flyd-vm.toml" >"$FLYD_DIR/flyd.toml"
+    if [ -n "${FLYD_TOML_EXTRA:-}" ]; then
+        printf '%s\n' "$FLYD_TOML_EXTRA" >>"$FLYD_DIR/flyd.toml"
+    fi
 }
 
 # flyd_candump: candump -L of the bus to $RESULTS/candump.log, once it listens.
@@ -69,9 +73,11 @@ flyd_feeder() {
     vm_wait_for 120 grep -qs 'first frame written' "$RESULTS/feeder.log"
 }
 
-# flyd_start: starts flyd on the config (JSON log to $RESULTS/flyd.log); returns at once.
+# flyd_start: starts flyd on the config (JSON log to $RESULTS/flyd.log), with the arguments
+# in $FLYD_ARGS (a scenario's, split on spaces); returns at once.
 flyd_start() {
-    flyd run --config "$FLYD_DIR/flyd.toml" >"$RESULTS/flyd.log" 2>&1 &
+    # shellcheck disable=SC2086 # FLYD_ARGS is split on purpose
+    flyd run --config "$FLYD_DIR/flyd.toml" ${FLYD_ARGS:-} >"$RESULTS/flyd.log" 2>&1 &
     FLYD=$!
     flyd_event flyd-started
 }
