@@ -333,6 +333,7 @@ fn start_offline_recording(
         flies,
         images: true,
         flies_every: flyd::config::RecordConfig::default().flies_every,
+        fps: 30.0,
     };
     let config_text = config.and_then(|p| flyd_core::textfile::read(p).ok());
     let metadata = metadata
@@ -364,6 +365,7 @@ fn replay_recording(path: &Path, args: &ReplayArgs) -> Result<()> {
             flies: config.engine.flies,
             images: true,
             flies_every: config.record.flies_every,
+            fps: config.cameras.fps,
         };
         let text = config
             .file
@@ -514,6 +516,13 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
     ] {
         signal_hook::flag::register(signal, shutdown.flag().clone())
             .with_context(|| format!("installing the handler of signal {signal}"))?;
+    }
+    // A file over RLIMIT_FSIZE (systemd's LimitFSIZE=, `ulimit -f`) must fail its write with
+    // EFBIG (a recorder fault: logged, flyd drives on), not kill the daemon with SIGXFSZ.
+    // SAFETY: setting a signal's disposition to SIG_IGN installs no handler code; it is done
+    // here, before any thread that writes files is started.
+    if unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) } == libc::SIG_ERR {
+        bail!("ignoring SIGXFSZ: {}", std::io::Error::last_os_error());
     }
     if let Some(duration) = duration {
         let timer = shutdown.clone();

@@ -425,3 +425,42 @@ fn the_shipped_foxglove_layout_only_names_topics_and_fields_flyd_records() {
         );
     }
 }
+
+#[test]
+fn a_file_size_limit_hit_mid_run_stops_the_recording_not_the_perception() {
+    // RLIMIT_FSIZE at 20-40 MB (under a second of the demo's frames): the write that crosses it
+    // fails with EFBIG (flyd ignores SIGXFSZ, which would kill it), as a disk filling up does.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mcap, log) = (dir.path().join("r.mcap"), dir.path().join("can.log"));
+    let script = format!(
+        "ulimit -f 40000; exec '{}' run --config '{}' --record '{}' --can-log '{}' --duration 3",
+        env!("CARGO_BIN_EXE_flyd"),
+        repo("config/demo.toml").display(),
+        mcap.display(),
+        log.display()
+    );
+    let out = Command::new("sh")
+        .args(["-c", &script])
+        .output()
+        .expect("sh runs");
+    let logs =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "flyd drives on: {logs}");
+    assert!(logs.contains("recording stopped: cannot write"), "{logs}");
+    assert!(logs.contains("File too large"), "{logs}");
+    let stopped = logged(&logs, "flyd stopped");
+    assert_eq!(stopped["faults_seen"], "none", "{stopped}");
+    assert!(
+        stopped["generations"].as_u64().unwrap_or(0) > 200,
+        "{stopped}"
+    );
+    let commands = std::fs::read_to_string(&log)
+        .expect("can log")
+        .lines()
+        .filter(|l| l.contains(" 120#"))
+        .count();
+    assert!(commands >= 120, "{commands} commands in 3 s");
+    // `ulimit -f` counts 512- or 1024-byte blocks, as the shell decides.
+    let size = std::fs::metadata(&mcap).expect("file").len();
+    assert!((20_000 * 512..=40_000 * 1024).contains(&size), "{size}");
+}

@@ -464,6 +464,7 @@ fn start_recording(
         flies: config.engine.flies,
         images: record.images,
         flies_every: record.flies_every,
+        fps: config.cameras.fps,
     });
     let config_text = config
         .file

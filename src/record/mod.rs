@@ -174,7 +174,7 @@ impl Returns {
 }
 
 /// Queue and pool sizes of a recorder.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecorderSizes {
     /// Records in the queue at most.
     pub queue: usize,
@@ -183,14 +183,18 @@ pub struct RecorderSizes {
     pub flies: usize,
     pub images: bool,
     pub flies_every: u64,
+    /// Camera frames per second (the frame pool holds a second of both cameras).
+    pub fps: f64,
 }
 
 /// A recorder's handle and the writer's end of its queue.
 pub fn channel(sizes: RecorderSizes) -> (Recorder, Receiver<Record>, Returns) {
     let (queue, rx) = crossbeam_channel::bounded(sizes.queue);
-    // Enough frame buffers for ~half a second of both cameras at 30 fps in flight.
+    // A second of both cameras in flight (at least 8 frames): a writer stalled that long by
+    // the disk or a busy core drops nothing. The buffers are zeroed pages until first used.
     let frame_len = sizes.width as usize * sizes.height as usize * 3;
-    let frames = Pool::new(if sizes.images { 32 } else { 0 }, frame_len);
+    let second = (2.0 * sizes.fps.clamp(1.0, 120.0)).ceil() as usize;
+    let frames = Pool::new(if sizes.images { second.max(8) } else { 0 }, frame_len);
     let flies = Pool::new(8, sizes.flies * FLY_FLOATS);
     let recorder = Recorder {
         queue,
@@ -563,6 +567,7 @@ mod tests {
             flies: 3,
             images: true,
             flies_every: 2,
+            fps: 16.0,
         }
     }
 
