@@ -48,10 +48,17 @@ struct Recorded {
 
 /// `flyd run` on the demo configuration with `--record` and `--can-log`.
 fn record_demo(extra_toml: &str) -> Recorded {
+    record_with(|demo| format!("{demo}\n{extra_toml}"), None)
+}
+
+/// `flyd run --record --can-log` on the demo configuration as `edit` makes it.
+/// With `can_input`, the frames flyd receives come from that candump log.
+fn record_with(edit: impl FnOnce(&str) -> String, can_input: Option<&Path>) -> Recorded {
     let dir = tempfile::tempdir().expect("tempdir");
-    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let demo = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let text = edit(&demo);
     let config = dir.path().join("demo.toml");
-    std::fs::write(&config, format!("{text}\n{extra_toml}")).expect("write config");
+    std::fs::write(&config, text).expect("write config");
     let mcap = dir.path().join("demo.mcap");
     let log = dir.path().join("demo.log");
     let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
@@ -62,6 +69,7 @@ fn record_demo(extra_toml: &str) -> Recorded {
         .arg(&mcap)
         .arg("--can-log")
         .arg(&log)
+        .args(can_input.iter().flat_map(|p| [Path::new("--can-input"), p]))
         .output()
         .expect("flyd runs");
     // With the CAN log in a file, the logs go to stdout (JSON lines off a terminal).
@@ -463,4 +471,100 @@ fn a_file_size_limit_hit_mid_run_stops_the_recording_not_the_perception() {
     // `ulimit -f` counts 512- or 1024-byte blocks, as the shell decides.
     let size = std::fs::metadata(&mcap).expect("file").len();
     assert!((20_000 * 512..=40_000 * 1024).contains(&size), "{size}");
+}
+
+/// A candump log of `VCU_Motion` at `speed` m/s every 20 ms for `seconds`, with a frame of
+/// bad CRC every 200 ms (rejected).
+fn motion_log(path: &Path, seconds: f64, speed: f64) {
+    use flyd_core::can::candump::format_candump_line;
+    use flyd_core::can::messages::{AliveCounter, MotionMsg};
+    let (mut text, mut counter) = (String::new(), AliveCounter::ZERO);
+    let t0 = std::time::Duration::from_secs(1_764_000_000);
+    for k in 0..(seconds / 0.02).round() as u64 {
+        let t = t0 + std::time::Duration::from_millis(20 * k);
+        let msg = MotionMsg {
+            valid: true,
+            speed,
+            yaw_rate: 0.0,
+        };
+        let mut data = msg.encode(counter.advance());
+        text += &format_candump_line(t, "vcan0", 0x110, &data);
+        text.push('\n');
+        if k % 10 == 5 {
+            data[0] ^= 0xFF;
+            text += &format_candump_line(
+                t + std::time::Duration::from_millis(1),
+                "vcan0",
+                0x110,
+                &data,
+            );
+            text.push('\n');
+        }
+    }
+    std::fs::write(path, text).expect("write the motion log");
+}
+
+#[test]
+fn a_drive_with_the_vehicles_motion_replays_with_its_received_frames_and_moved_flies() {
+    // A recorded 30 km/h drive's bus (--can-input) under the demo: the flies are moved with
+    // it between frames. The replay runs the received frames through the motion monitor
+    // again (its speed is checked against the recorded one) and moves the flies with the
+    // recorded motion.
+    let inputs = tempfile::tempdir().expect("tempdir");
+    let input = inputs.path().join("motion.log");
+    motion_log(&input, 6.0, 30.0 / 3.6);
+    let r = record_with(
+        |demo| {
+            demo.replace("width = 640", "width = 320")
+                .replace("height = 480", "height = 240")
+                .replace("flies = 5000", "flies = 1000")
+                .replace("motion = \"none\"", "motion = \"can\"")
+        },
+        Some(&input),
+    );
+    let counts = topic_counts(&r.mcap);
+    let received = counts.get("/can/rx").copied().unwrap_or(0);
+    assert!(
+        received > 100,
+        "{received} VCU_Motion frames recorded: {counts:?}"
+    );
+    // Every frame flyd read is in the recording, the rejected ones too.
+    let read = r.stopped["motion_accepted"].as_u64().unwrap_or(0)
+        + r.stopped["motion_rejected"].as_u64().unwrap_or(0);
+    assert_eq!(received as u64, read, "{}", r.stopped);
+    assert!(
+        r.stopped["motion_rejected"].as_u64() > Some(10),
+        "{}",
+        r.stopped
+    );
+    let data = std::fs::read(&r.mcap).expect("recording");
+    let predicted = mcap::MessageStream::new(&data)
+        .expect("mcap")
+        .filter_map(Result::ok)
+        .filter(|m| m.channel.topic == "/flyd/pair")
+        .filter(|m| {
+            serde_json::from_slice::<serde_json::Value>(&m.data)
+                .is_ok_and(|v| v["predict"]["speed"].as_f64().is_some_and(|s| s > 8.0))
+        })
+        .count();
+    assert!(
+        predicted > 50,
+        "{predicted} pairs with the flies moved at 30 km/h"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .output()
+        .expect("flyd replay runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    println!("replay: {s}");
+    assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
+    assert!(s["commands_recorded"].as_u64() > Some(100), "{s}");
 }
