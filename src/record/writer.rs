@@ -896,6 +896,70 @@ mod tests {
     use super::*;
 
     #[test]
+    fn rotation_by_time_starts_a_new_complete_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("t.mcap");
+        let (recorder, rx, returns) = super::super::channel(super::super::RecorderSizes {
+            queue: 16,
+            width: 8,
+            height: 8,
+            flies: 4,
+            images: true,
+            flies_every: 1,
+            fps: 10.0,
+        });
+        let options = RecordOptions {
+            path: Some(path.clone()),
+            rotate_bytes: None,
+            rotate_after: Some(Duration::from_millis(30)),
+            compression: true,
+            live: None,
+            config_text: Some("[cameras]\n".into()),
+            metadata: BTreeMap::new(),
+        };
+        let rig = crate::mock::mock_rig(320, 240).expect("rig");
+        let counters = recorder.counters().clone();
+        let writer = spawn_writer(options, &rig, rx, returns, counters).expect("writer");
+        let stats = |t: u64| super::super::topics::StatsEvent {
+            t_ns: t,
+            fps_left: 10.0,
+            fps_right: 10.0,
+            generations_per_sec: 100.0,
+            gen_p50_ms: 0.1,
+            gen_p99_ms: 0.2,
+            generations: t,
+            pairs: t,
+            snapshots_dropped: 0,
+            record_dropped: 0,
+        };
+        for t in 0..3 {
+            recorder.stats(stats(t));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        drop(recorder);
+        let report = writer.handle.join().expect("writer ends");
+        assert!(report.files.len() >= 2, "{report:?}");
+        assert_eq!(report.files[1], dir.path().join("t.1.mcap"));
+        let mut stats_seen = 0;
+        for file in &report.files {
+            let data = std::fs::read(file).expect("part");
+            let summary = mcap::Summary::read(&data)
+                .expect("complete")
+                .expect("summary");
+            assert_eq!(summary.channels.len(), Topic::ALL.len());
+            assert!(
+                summary
+                    .attachment_indexes
+                    .iter()
+                    .any(|a| a.name == "config.toml")
+            );
+            stats_seen += mcap::MessageStream::new(&data).expect("messages").count();
+        }
+        assert_eq!(stats_seen, 3, "every record in exactly one part");
+        assert!(!report.failed);
+    }
+
+    #[test]
     fn parts_are_numbered_beside_the_first_file() {
         assert_eq!(
             part_path(Path::new("/var/lib/flyd/drive.mcap"), 2),
