@@ -568,3 +568,51 @@ fn a_drive_with_the_vehicles_motion_replays_with_its_received_frames_and_moved_f
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     assert!(s["commands_recorded"].as_u64() > Some(100), "{s}");
 }
+
+#[test]
+fn generations_on_the_last_pair_after_the_cameras_stop_replay_too() {
+    // Both cameras deliver nothing from 3 s (a dropped stream): the evolution goes on on the
+    // last pair, the decision falls back (stale cameras) on those snapshots; the replay runs
+    // those generations too and reproduces every command.
+    let r = record_with(
+        |demo| {
+            demo.replacen(
+                "stale_frames = 3\n",
+                "stale_frames = 3\n\n[[cameras.mock_faults]]\nkind = \"drop\"\ncamera = \"both\"\nfrom_s = 3.0\nto_s = 6.0\n",
+                1,
+            )
+        },
+        None,
+    );
+    assert!(
+        r.stopped["faults_seen"]
+            .as_str()
+            .is_some_and(|f| f.contains("CAMERA_STALE")),
+        "{}",
+        r.stopped
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .output()
+        .expect("flyd replay runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    // Up to the last generation the decision took: the daemon's last, but for the few its
+    // evolution ran while the control thread was already shutting down.
+    let (replayed, ran) = (
+        s["generations"].as_u64().unwrap_or(0),
+        r.stopped["generations"].as_u64().unwrap_or(0),
+    );
+    assert!(
+        replayed <= ran && replayed + 20 >= ran,
+        "{replayed} of {ran}: {s}"
+    );
+    assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
+}

@@ -56,9 +56,8 @@ pub enum Record {
         len: usize,
         pixels: Vec<u8>,
     },
-    /// The population after `generation` (`points` is a pool buffer, [`FLY_FLOATS`] a fly).
+    /// The population after a generation (`points` is a pool buffer, [`FLY_FLOATS`] a fly).
     Flies {
-        generation: u64,
         at: Duration,
         flies: usize,
         points: Vec<f32>,
@@ -353,11 +352,11 @@ impl Recorder {
     /// The population after `generation`, if due.
     pub fn flies(&self, generation: u64, at: Duration, population: &Population) {
         if self.flies_due(generation) {
-            self.fly_fields(generation, at, population.into());
+            self.fly_fields(at, population.into());
         }
     }
 
-    fn fly_fields(&self, generation: u64, at: Duration, p: FlyFields<'_>) {
+    fn fly_fields(&self, at: Duration, p: FlyFields<'_>) {
         let taken = if self.wait {
             self.flies.free.recv().ok()
         } else {
@@ -372,7 +371,6 @@ impl Recorder {
             fly.copy_from_slice(&[p.x[i], p.y[i], p.z[i], p.fitness[i], p.warning[i]]);
         }
         let record = Record::Flies {
-            generation,
             at,
             flies: n,
             points: buffer,
@@ -607,7 +605,7 @@ mod tests {
         };
         assert!(!recorder.flies_due(3), "generation 3 is not due at every 2");
         assert!(recorder.flies_due(4));
-        recorder.fly_fields(4, Duration::ZERO, fields);
+        recorder.fly_fields(Duration::ZERO, fields);
         let Ok(Record::Flies { flies, points, .. }) = rx.try_recv() else {
             panic!("flies");
         };

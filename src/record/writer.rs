@@ -319,16 +319,10 @@ impl WriterLoop {
                     live.log(topic, t, &image);
                 }
             }
-            Record::Flies {
-                generation,
-                at,
-                flies,
-                points,
-            } => {
+            Record::Flies { at, flies, points } => {
                 let t = nanos(at);
                 let cloud = point_cloud(t, &points[..(flies * FLY_FLOATS).min(points.len())]);
                 self.returns.flies(points);
-                let _ = generation;
                 self.write_file(Topic::Flies, t, &cloud);
                 if let Some(live) = &mut self.live
                     && live.due(Topic::Flies, t)

@@ -179,10 +179,21 @@ pub fn replay(
         Some(start_recording) => Some(start_recording(&config.load_rig()?, &config)?),
         None => None,
     };
+    let last_generation = events
+        .control
+        .iter()
+        .filter_map(|e| match e {
+            ControlEvent::Perception(p) => Some(p.generation),
+            ControlEvent::Decision(d) => d.latest_generation,
+            ControlEvent::Received(_) => None,
+        })
+        .max()
+        .unwrap_or(0);
     let outcomes = replay_perception(
         &recording,
         &config,
         &events.pairs,
+        last_generation,
         start,
         recorder.as_ref(),
         &mut summary,
@@ -198,12 +209,14 @@ pub fn replay(
     Ok(summary)
 }
 
-/// Runs the perception over the recorded pairs; the outcome of every generation, by number
-/// (index 0 unused).
+/// Runs the perception over the recorded pairs, and on the last one up to `last_generation`
+/// (the last the decision took); the outcome of every generation, by number (index 0
+/// unused).
 fn replay_perception(
     recording: &Recording,
     config: &DaemonConfig,
     pairs: &[PairEvent],
+    last_generation: u64,
     start: u64,
     recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
@@ -318,6 +331,12 @@ fn replay_perception(
             break;
         }
         next += 1;
+    }
+    // The generations the daemon ran on the last pair, up to the last one the decision took.
+    if summary.divergence.is_none() && next > 0 {
+        while generation < last_generation {
+            generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
+        }
     }
     summary.generations = generation;
     Ok(outcomes)
