@@ -169,6 +169,7 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
     );
     assert_eq!(summary["snapshots"], summary["snapshots_identical"]);
     assert_eq!(summary["divergence"], serde_json::Value::Null);
+    assert_eq!(summary["complete"], true);
     assert!(
         summary["changes"].as_array().is_some_and(|c| c
             .iter()
@@ -468,6 +469,22 @@ fn a_file_size_limit_hit_mid_run_stops_the_recording_not_the_perception() {
         .filter(|l| l.contains(" 120#"))
         .count();
     assert!(commands >= 120, "{commands} commands in 3 s");
+    // What was written before the limit replays, as far as it goes.
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&mcap)
+        .output()
+        .expect("flyd replay runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    assert_eq!(s["complete"], false, "{s}");
+    assert!(s["commands_recorded"].as_u64() > Some(5), "{s}");
+    assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     // `ulimit -f` counts 512- or 1024-byte blocks, as the shell decides.
     let size = std::fs::metadata(&mcap).expect("file").len();
     assert!((20_000 * 512..=40_000 * 1024).contains(&size), "{size}");

@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use foxglove::Decode;
+
 use foxglove::schemas::RawImage;
 
 use super::topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, Topic};
@@ -117,45 +118,71 @@ impl Recording {
         }
     }
 
-    fn summary(&self) -> Result<mcap::Summary, ReadError> {
-        mcap::Summary::read(&self.data)
-            .map_err(|e| self.mcap_err(e))?
-            .ok_or_else(|| self.mcap_err(mcap::McapError::UnexpectedEof))
+    /// Whether the file ends as an MCAP file must (its footer and end magic): `false` for a
+    /// recording cut short, which is read up to where it was cut.
+    pub fn complete(&self) -> bool {
+        mcap::read::footer(&self.data).is_ok()
+    }
+
+    /// The first record `pick` takes, in a linear scan from the start (where the writer puts
+    /// the metadata and the attachment).
+    fn scan<T>(&self, mut pick: impl FnMut(mcap::records::Record<'_>) -> Option<T>) -> Option<T> {
+        let reader = mcap::read::LinearReader::new_with_options(
+            &self.data,
+            mcap::read::Options::IgnoreEndMagic.into(),
+        )
+        .ok()?;
+        reader.map_while(Result::ok).find_map(&mut pick)
     }
 
     /// The configuration the daemon ran with (`config.toml` attachment).
     pub fn config_text(&self) -> Result<Option<String>, ReadError> {
-        let summary = self.summary()?;
-        for index in &summary.attachment_indexes {
-            if index.name == "config.toml" {
-                let a = mcap::read::attachment(&self.data, index).map_err(|e| self.mcap_err(e))?;
-                return Ok(Some(String::from_utf8_lossy(&a.data).into_owned()));
+        Ok(self.scan(|record| match record {
+            mcap::records::Record::Attachment { header, data, .. }
+                if header.name == "config.toml" =>
+            {
+                Some(String::from_utf8_lossy(&data).into_owned())
             }
-        }
-        Ok(None)
+            _ => None,
+        }))
     }
 
     /// flyd's metadata record.
     pub fn metadata(&self) -> Result<BTreeMap<String, String>, ReadError> {
-        let summary = self.summary()?;
-        for index in &summary.metadata_indexes {
-            if index.name == "flyd" {
-                let m = mcap::read::metadata(&self.data, index).map_err(|e| self.mcap_err(e))?;
-                return Ok(m.metadata);
-            }
-        }
-        Ok(BTreeMap::new())
+        Ok(self
+            .scan(|record| match record {
+                mcap::records::Record::Metadata(m) if m.name == "flyd" => Some(m.metadata),
+                _ => None,
+            })
+            .unwrap_or_default())
     }
 
     fn messages(&self) -> Result<mcap::MessageStream<'_>, ReadError> {
-        mcap::MessageStream::new(&self.data).map_err(|e| self.mcap_err(e))
+        // A file cut short (a full disk, a killed daemon) is read as far as it goes: no end
+        // magic or summary needed, and a torn last chunk ends the messages.
+        mcap::MessageStream::new_with_options(
+            &self.data,
+            mcap::read::Options::IgnoreEndMagic.into(),
+        )
+        .map_err(|e| self.mcap_err(e))
+    }
+
+    /// A message error: the end of a recording cut short (`None`), or an error.
+    fn cut_or(&self, error: mcap::McapError) -> Option<ReadError> {
+        (self.complete()).then(|| self.mcap_err(error))
     }
 
     /// Every event but the images.
     pub fn events(&self) -> Result<Events, ReadError> {
         let mut events = Events::default();
         for message in self.messages()? {
-            let message = message.map_err(|e| self.mcap_err(e))?;
+            let message = match message {
+                Ok(m) => m,
+                Err(e) => match self.cut_or(e) {
+                    Some(error) => return Err(error),
+                    None => break,
+                },
+            };
             let Some(topic) = Topic::from_name(&message.channel.topic) else {
                 continue;
             };
@@ -199,10 +226,18 @@ impl Recording {
 
     /// The recorded frames, in file order (capture order per camera).
     pub fn frames(&self) -> Result<impl Iterator<Item = Result<Frame, ReadError>> + '_, ReadError> {
+        let mut ended = false;
         Ok(self.messages()?.filter_map(move |message| {
+            if ended {
+                return None;
+            }
             let message = match message {
                 Ok(m) => m,
-                Err(e) => return Some(Err(self.mcap_err(e))),
+                Err(e) => {
+                    // The end of a recording cut short, or an error (reported, then the end).
+                    ended = true;
+                    return self.cut_or(e).map(Err);
+                }
             };
             let (topic, side) = match Topic::from_name(&message.channel.topic) {
                 Some(t @ Topic::LeftImage) => (t, Side::Left),

@@ -83,6 +83,9 @@ pub struct Divergence {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RecordedSummary {
     pub recording: String,
+    /// `false`: the file was cut short (no footer: a full disk, a killed daemon) and is
+    /// replayed as far as it goes.
+    pub complete: bool,
     pub seed: u64,
     pub frames: [u64; 2],
     pub pairs: usize,
@@ -157,6 +160,7 @@ pub fn replay(
         return Err(RecordedError::NoImages(shown));
     }
     let mut summary = RecordedSummary {
+        complete: recording.complete(),
         recording: shown,
         seed: config.engine.seed,
         frames: events.images,
