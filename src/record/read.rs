@@ -1,9 +1,9 @@
 //! Reading a recording back (`flyd replay --mcap`): its configuration, its events and its
 //! frames.
 //!
-//! The file is read into memory once (a recording's parts keep it bounded: `record.rotate_mb`);
-//! events are collected in one pass ([`Recording::events`]), frames streamed in file order in
-//! another ([`Recording::frames`]), so only a few decoded frames are alive at a time.
+//! The file is mapped, not read into memory (a drive's recording is tens of GB); events are
+//! collected in one pass ([`Recording::events`]), frames streamed in file order in another
+//! ([`Recording::frames`]), so only a few decoded frames are alive at a time.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -92,15 +92,22 @@ pub struct Frame {
 
 pub struct Recording {
     path: PathBuf,
-    data: Vec<u8>,
+    data: memmap2::Mmap,
 }
 
 impl Recording {
+    /// Maps the file: a recording of a whole drive is larger than memory, and is read once,
+    /// front to back, per pass.
     pub fn open(path: &Path) -> Result<Self, ReadError> {
-        let data = std::fs::read(path).map_err(|error| ReadError::Io {
+        let io = |error| ReadError::Io {
             path: path.to_path_buf(),
             error,
-        })?;
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        // SAFETY: the map is only read. A recording is a finished file; were another process
+        // to truncate it while it is replayed, reads past the new end would fault (SIGBUS),
+        // which is why replay is run on recordings, never on the file a daemon writes.
+        let data = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
         Ok(Self {
             path: path.to_path_buf(),
             data,
