@@ -633,3 +633,59 @@ fn generations_on_the_last_pair_after_the_cameras_stop_replay_too() {
     );
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
 }
+
+#[test]
+fn commands_decided_on_the_newest_snapshot_again_replay_and_record_again() {
+    // A generation every 50 ms and on each new frame (33 ms) against a command every 20 ms:
+    // many commands find no new snapshot and are decided on the newest one again, at their
+    // own time (what a loaded machine makes of the shipped settings).
+    let r = record_with(
+        |demo| {
+            demo.replace(
+                "generation_period_ms = 10",
+                "generation_period_ms = 50\nburst_generations = 1",
+            )
+            .replace("width = 640", "width = 320")
+            .replace("height = 480", "height = 240")
+            .replace("flies = 5000", "flies = 1000")
+        },
+        None,
+    );
+    let data = std::fs::read(&r.mcap).expect("recording");
+    let latest = mcap::MessageStream::new(&data)
+        .expect("mcap")
+        .filter_map(Result::ok)
+        .filter(|m| m.channel.topic == "/flyd/decision")
+        .filter(|m| {
+            serde_json::from_slice::<serde_json::Value>(&m.data)
+                .is_ok_and(|v| v["from"] == "latest")
+        })
+        .count();
+    assert!(
+        latest > 20,
+        "{latest} commands on the newest snapshot again"
+    );
+    let replay = |mcap: &Path, record: Option<&Path>| {
+        let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+            .arg("replay")
+            .arg("--mcap")
+            .arg(mcap)
+            .args(record.iter().flat_map(|p| [Path::new("--record"), p]))
+            .output()
+            .expect("flyd replay runs");
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        serde_json::from_str::<serde_json::Value>(&stdout).expect("summary")
+    };
+    let again = r.mcap.with_file_name("again.mcap");
+    let first = replay(&r.mcap, Some(&again));
+    let second = replay(&again, None);
+    for s in [&first, &second] {
+        assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
+        assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
+    }
+}

@@ -551,7 +551,13 @@ fn replay_decisions(
                         flyd_core::status::State::Degraded
                     };
                     let input = DecisionInput { faults, ..used };
-                    r.command(d.seq, t, d.from, None, faults, state, &input, &decision);
+                    // A command decided on the newest snapshot again carries what it was
+                    // decided from, as the daemon records it.
+                    let latest = match d.from {
+                        InputFrom::Latest => d.latest_generation.map(|g| (g, used)),
+                        _ => None,
+                    };
+                    r.command(d.seq, t, d.from, latest, faults, state, &input, &decision);
                     for f in &replayed {
                         r.can(true, d.seq, t, f.id, &f.data);
                     }
