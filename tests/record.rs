@@ -314,7 +314,7 @@ fn rotation_splits_the_recording_into_files_that_each_stand_alone() {
         let summary = mcap::Summary::read(&data)
             .expect("a complete MCAP file")
             .expect("with a summary");
-        assert_eq!(summary.channels.len(), 13, "{}", file.display());
+        assert_eq!(summary.channels.len(), 15, "{}", file.display());
         assert!(
             summary
                 .attachment_indexes
@@ -688,4 +688,65 @@ fn commands_decided_on_the_newest_snapshot_again_replay_and_record_again() {
         assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
         assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
     }
+}
+
+#[test]
+fn an_mjpeg_camera_is_recorded_as_its_jpeg_and_replays_bit_for_bit() {
+    // Mock cameras delivering MJPEG (`pixel_format = "MJPG"`): each frame JPEG-encoded, then
+    // decoded by the V4L2 MJPEG converter. The recording keeps the JPEG, a tenth of the
+    // pixels, and the replay decodes it to the very same pixels.
+    let r = record_with(
+        |demo| {
+            demo.replace(
+                "stale_frames = 3\n",
+                "stale_frames = 3\npixel_format = \"MJPG\"\n",
+            )
+        },
+        None,
+    );
+    let counts = topic_counts(&r.mcap);
+    assert_eq!(counts.get("/camera/left/image"), None, "{counts:?}");
+    assert_eq!(
+        counts
+            .get("/camera/left/image/compressed")
+            .map(|&n| n as u64),
+        r.stopped["frames_left"].as_u64(),
+        "{counts:?}"
+    );
+    let size = std::fs::metadata(&r.mcap).expect("file").len();
+    println!("5 s of the demo from MJPEG cameras: {size} bytes");
+    assert!(size < 40_000_000, "{size} bytes");
+    // A third-party decoder reads the frames.
+    let data = std::fs::read(&r.mcap).expect("recording");
+    let jpeg = mcap::MessageStream::new(&data)
+        .expect("mcap")
+        .filter_map(Result::ok)
+        .find(|m| m.channel.topic == "/camera/right/image/compressed")
+        .expect("a right frame");
+    let decoded = <foxglove::schemas::CompressedImage as foxglove::Decode>::decode(&jpeg.data[..])
+        .expect("CompressedImage");
+    assert_eq!(decoded.format, "jpeg");
+    let picture = image::load_from_memory(&decoded.data).expect("a JPEG");
+    assert_eq!((picture.width(), picture.height()), (640, 480));
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("replay")
+        .arg("--mcap")
+        .arg(&r.mcap)
+        .output()
+        .expect("flyd replay runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
+    assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
+    assert!(
+        s["changes"].as_array().is_some_and(|c| c
+            .iter()
+            .any(|x| x.as_str().is_some_and(|x| x.ends_with(":STOP")))),
+        "the demo's STOP through the MJPEG path: {s}"
+    );
 }

@@ -523,10 +523,16 @@ impl FrameConverter {
     }
 
     /// Converts one payload and prepares it into `out` (which must have the camera's size).
+    /// An image that retains its pixels (a recording) keeps an MJPEG frame's JPEG instead: the
+    /// camera's own payload, a fraction of the pixels' size, which this converter decodes
+    /// again to the very same pixels.
     pub fn prepare(&mut self, payload: &[u8], out: &mut PreparedImage) -> Result<(), ConvertError> {
         let output = self.output;
         let pixels = self.convert(payload)?;
         out.prepare(output, pixels)?;
+        if self.format == CaptureFormat::Mjpg {
+            out.retain_encoded(payload);
+        }
         Ok(())
     }
 }

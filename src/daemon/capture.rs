@@ -103,9 +103,9 @@ impl CaptureThread {
                     slot.arrival = now;
                     slot.health = check.observe(&slot.image);
                     if let Some(recorder) = &self.recorder
-                        && let Some((format, pixels)) = slot.image.pixels()
+                        && let Some(frame) = slot.image.pixels()
                     {
-                        recorder.frame(self.side, meta.timestamp, (w, h), format, pixels);
+                        recorder.frame(self.side, meta.timestamp, (w, h), frame);
                     }
                     self.writer.publish();
                     let ns = u64::try_from(now.as_nanos()).unwrap_or(u64::MAX - 1);

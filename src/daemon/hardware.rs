@@ -109,7 +109,15 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
     match &config.cameras.source {
         CameraSource::Mock { scenario, faults } => {
             let (w, h) = (config.cameras.width, config.cameras.height);
-            let (left, right, _) = mock_cameras(scenario, w, h, clock, faults)?;
+            let (mut left, mut right, _) = mock_cameras(scenario, w, h, clock, faults)?;
+            if config.cameras.pixel_format == crate::capture::CaptureFormat::Mjpg {
+                // The V4L2 MJPEG path (decode, then prepare), on the mock's frames.
+                for camera in [&mut left, &mut right] {
+                    camera.deliver_mjpeg().map_err(|e| {
+                        DaemonError::MockCameras(super::mock_camera::MockCameraError::Mjpeg(e))
+                    })?;
+                }
+            }
             Ok((Box::new(left), Box::new(right)))
         }
         CameraSource::Devices { left, right } => {

@@ -74,7 +74,19 @@ pub struct MockCamera {
     size: (u32, u32),
     /// The faults that concern this camera.
     faults: Vec<MockFault>,
+    /// Delivers its frames as an MJPEG camera does ([`MockCamera::deliver_mjpeg`]).
+    mjpeg: Option<MockMjpeg>,
 }
+
+/// An MJPEG camera's path for a mock one: each rendered frame JPEG-encoded (the camera's
+/// encoder), then decoded and prepared by the converter V4L2 MJPEG frames go through.
+struct MockMjpeg {
+    jpeg: Vec<u8>,
+    converter: crate::capture::FrameConverter,
+}
+
+/// JPEG quality of a mock MJPEG camera (what UVC cameras deliver at 640x480).
+const MOCK_JPEG_QUALITY: u8 = 85;
 
 /// What an injected fault does to a mock camera's frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -196,6 +208,7 @@ pub fn mock_cameras(
         pixels: vec![0; bytes],
         size: (width, height),
         faults: faults.iter().copied().filter(|f| f.hits(side)).collect(),
+        mjpeg: None,
     };
     Ok((
         camera(Side::Left),
@@ -208,6 +221,8 @@ pub fn mock_cameras(
 pub enum MockCameraError {
     #[error("unknown mock scenario '{name}' (known: {known})")]
     UnknownScenario { name: String, known: String },
+    #[error("mock MJPEG camera")]
+    Mjpeg(#[source] crate::capture::ConvertError),
     #[error("mock stereo feed")]
     Mock(#[from] MockError),
 }
@@ -292,6 +307,29 @@ impl MockCamera {
     }
 }
 
+impl MockCamera {
+    /// From now on, frames come as an MJPEG camera delivers them: JPEG-encoded on this
+    /// capture thread, decoded and prepared by [`crate::capture::FrameConverter`] (the V4L2
+    /// MJPEG path; `cameras.pixel_format = "MJPG"` with mock cameras).
+    pub fn deliver_mjpeg(&mut self) -> Result<(), crate::capture::ConvertError> {
+        let (w, h) = self.size;
+        let max = w as usize * h as usize * 3;
+        let converter = crate::capture::FrameConverter::new(
+            crate::capture::CaptureFormat::Mjpg,
+            w,
+            h,
+            0,
+            PixelFormat::Rgb8,
+            max,
+        )?;
+        self.mjpeg = Some(MockMjpeg {
+            jpeg: Vec::with_capacity(max),
+            converter,
+        });
+        Ok(())
+    }
+}
+
 impl FrameSource for MockCamera {
     fn name(&self) -> &str {
         &self.name
@@ -336,12 +374,24 @@ impl FrameSource for MockCamera {
             self.next = k + 1;
             return Err(SourceError::Timeout(timeout));
         }
-        out.prepare(PixelFormat::Rgb8, &self.pixels)
-            .map_err(|e| SourceError::Format {
-                device: self.name.clone(),
-                reason: "preparing a frame".into(),
-                cause: Some(e.into()),
-            })?;
+        let (w, h) = self.size;
+        let prepared = match self.mjpeg.as_mut() {
+            None => out
+                .prepare(PixelFormat::Rgb8, &self.pixels)
+                .map_err(|e| e.into()),
+            Some(m) => {
+                m.jpeg.clear();
+                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut m.jpeg, MOCK_JPEG_QUALITY)
+                    .encode(&self.pixels, w, h, image::ExtendedColorType::Rgb8)
+                    .map_err(|e| -> Box<dyn std::error::Error + Send + Sync> { e.into() })
+                    .and_then(|()| m.converter.prepare(&m.jpeg, out).map_err(|e| e.into()))
+            }
+        };
+        prepared.map_err(|cause| SourceError::Format {
+            device: self.name.clone(),
+            reason: "preparing a frame".into(),
+            cause: Some(cause),
+        })?;
         self.next = k + 1;
         Ok(FrameMeta {
             timestamp: self.due(k),

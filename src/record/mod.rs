@@ -35,7 +35,7 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 
 use crate::daemon::pairer::Side;
 use flyd_core::engine::Population;
-use flyd_core::frame::PixelFormat;
+use flyd_core::frame::{PixelFormat, Retained};
 use topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, StatsEvent};
 
 pub use writer::{RecordOptions, WriterError, spawn_writer};
@@ -46,11 +46,12 @@ pub const FLY_FLOATS: usize = 5;
 /// One thing to record, as the real-time threads hand it over.
 #[derive(Debug)]
 pub enum Record {
-    /// A camera frame as prepared (`pixels` is a pool buffer: `pixels[..len]`).
+    /// A camera frame as prepared (`pixels` is a pool buffer: `pixels[..len]`): its packed
+    /// pixels (`format`), or an MJPEG camera's JPEG (`format` is `None`).
     Frame {
         side: Side,
         timestamp: Duration,
-        format: PixelFormat,
+        format: Option<PixelFormat>,
         width: u32,
         height: u32,
         len: usize,
@@ -308,15 +309,19 @@ impl Recorder {
         }
     }
 
-    /// A frame as prepared; `pixels` is what `PreparedImage::prepare` was given.
+    /// A frame as prepared: what `PreparedImage::prepare` was given, or the JPEG it was
+    /// decoded from ([`PreparedImage::pixels`](flyd_core::frame::PreparedImage::pixels)).
     pub fn frame(
         &self,
         side: Side,
         timestamp: Duration,
         (width, height): (u32, u32),
-        format: PixelFormat,
-        pixels: &[u8],
+        frame: Retained<'_>,
     ) {
+        let (format, pixels) = match frame {
+            Retained::Raw(format, pixels) => (Some(format), pixels),
+            Retained::Jpeg(jpeg) => (None, jpeg),
+        };
         if !self.images {
             return;
         }
@@ -573,8 +578,9 @@ mod tests {
     fn a_full_queue_drops_and_counts_and_the_buffer_returns_to_its_pool() {
         let (recorder, rx, returns) = channel(sizes(1));
         let px = [7u8; 24];
-        recorder.frame(Side::Left, Duration::ZERO, (4, 2), PixelFormat::Rgb8, &px);
-        recorder.frame(Side::Right, Duration::ZERO, (4, 2), PixelFormat::Rgb8, &px);
+        let frame = Retained::Raw(PixelFormat::Rgb8, &px);
+        recorder.frame(Side::Left, Duration::ZERO, (4, 2), frame);
+        recorder.frame(Side::Right, Duration::ZERO, (4, 2), frame);
         assert_eq!(recorder.counters().dropped(), 1);
         let Ok(Record::Frame {
             side, len, pixels, ..
@@ -616,13 +622,8 @@ mod tests {
     #[test]
     fn a_frame_larger_than_the_pool_buffers_is_dropped_not_cut() {
         let (recorder, rx, _returns) = channel(sizes(8));
-        recorder.frame(
-            Side::Left,
-            Duration::ZERO,
-            (8, 8),
-            PixelFormat::Rgb8,
-            &[0; 192],
-        );
+        let frame = Retained::Raw(PixelFormat::Rgb8, &[0; 192]);
+        recorder.frame(Side::Left, Duration::ZERO, (8, 8), frame);
         assert!(rx.try_recv().is_err());
         assert_eq!(recorder.counters().dropped(), 1);
     }

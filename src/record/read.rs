@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use foxglove::Decode;
 
-use foxglove::schemas::RawImage;
+use foxglove::schemas::{CompressedImage, RawImage};
 
 use super::topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, Topic};
 use crate::daemon::pairer::Side;
@@ -84,9 +84,8 @@ pub struct Events {
 pub struct Frame {
     pub side: Side,
     pub timestamp_ns: u64,
-    pub format: PixelFormat,
-    pub width: u32,
-    pub height: u32,
+    /// The packed pixels' format; `None`: `pixels` is an MJPEG camera's JPEG.
+    pub format: Option<PixelFormat>,
     pub pixels: Vec<u8>,
 }
 
@@ -195,8 +194,8 @@ impl Recording {
             };
             let data = &message.data[..];
             match topic {
-                Topic::LeftImage => events.images[0] += 1,
-                Topic::RightImage => events.images[1] += 1,
+                Topic::LeftImage | Topic::LeftCompressed => events.images[0] += 1,
+                Topic::RightImage | Topic::RightCompressed => events.images[1] += 1,
                 Topic::Pair => events.pairs.push(self.decode(topic, &message, data)?),
                 Topic::Perception => events.control.push(ControlEvent::Perception(
                     self.decode(topic, &message, data)?,
@@ -247,8 +246,8 @@ impl Recording {
                 }
             };
             let (topic, side) = match Topic::from_name(&message.channel.topic) {
-                Some(t @ Topic::LeftImage) => (t, Side::Left),
-                Some(t @ Topic::RightImage) => (t, Side::Right),
+                Some(t @ (Topic::LeftImage | Topic::LeftCompressed)) => (t, Side::Left),
+                Some(t @ (Topic::RightImage | Topic::RightCompressed)) => (t, Side::Right),
                 _ => return None,
             };
             Some(self.frame(topic, side, &message))
@@ -267,6 +266,20 @@ impl Recording {
             sequence: message.sequence,
             error,
         };
+        if matches!(topic, Topic::LeftCompressed | Topic::RightCompressed) {
+            let image = CompressedImage::decode(&message.data[..]).map_err(|e| bad(e.into()))?;
+            if image.format != "jpeg" {
+                return Err(bad(
+                    format!("format {}: flyd records jpeg", image.format).into()
+                ));
+            }
+            return Ok(Frame {
+                side,
+                timestamp_ns: message.log_time,
+                format: None,
+                pixels: image.data.to_vec(),
+            });
+        }
         let image = RawImage::decode(&message.data[..]).map_err(|e| bad(e.into()))?;
         let format = match image.encoding.as_str() {
             "rgb8" => PixelFormat::Rgb8,
@@ -291,9 +304,7 @@ impl Recording {
         Ok(Frame {
             side,
             timestamp_ns: message.log_time,
-            format,
-            width: image.width,
-            height: image.height,
+            format: Some(format),
             pixels: image.data.to_vec(),
         })
     }

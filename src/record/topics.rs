@@ -24,6 +24,9 @@ use serde::{Deserialize, Serialize};
 pub enum Topic {
     LeftImage,
     RightImage,
+    /// An MJPEG camera's frames: its JPEG payloads.
+    LeftCompressed,
+    RightCompressed,
     LeftCalibration,
     RightCalibration,
     Transforms,
@@ -47,9 +50,11 @@ pub enum Encoding {
 }
 
 impl Topic {
-    pub const ALL: [Topic; 13] = [
+    pub const ALL: [Topic; 15] = [
         Topic::LeftImage,
         Topic::RightImage,
+        Topic::LeftCompressed,
+        Topic::RightCompressed,
         Topic::LeftCalibration,
         Topic::RightCalibration,
         Topic::Transforms,
@@ -67,6 +72,8 @@ impl Topic {
         match self {
             Topic::LeftImage => "/camera/left/image",
             Topic::RightImage => "/camera/right/image",
+            Topic::LeftCompressed => "/camera/left/image/compressed",
+            Topic::RightCompressed => "/camera/right/image/compressed",
             Topic::LeftCalibration => "/camera/left/calibration",
             Topic::RightCalibration => "/camera/right/calibration",
             Topic::Transforms => "/tf",
@@ -89,6 +96,8 @@ impl Topic {
         match self {
             Topic::LeftImage
             | Topic::RightImage
+            | Topic::LeftCompressed
+            | Topic::RightCompressed
             | Topic::LeftCalibration
             | Topic::RightCalibration
             | Topic::Transforms

@@ -26,9 +26,9 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError};
 use foxglove::schemas::{
-    CameraCalibration, Color, CubePrimitive, FrameTransform, FrameTransforms, PackedElementField,
-    PointCloud, Pose, Quaternion, RawImage, SceneEntity, SceneUpdate, Timestamp, Vector3,
-    packed_element_field::NumericType,
+    CameraCalibration, Color, CompressedImage, CubePrimitive, FrameTransform, FrameTransforms,
+    PackedElementField, PointCloud, Pose, Quaternion, RawImage, SceneEntity, SceneUpdate,
+    Timestamp, Vector3, packed_element_field::NumericType,
 };
 use foxglove::{Encode, PartialMetadata};
 
@@ -280,22 +280,40 @@ impl WriterLoop {
                 pixels,
             } => {
                 let t = nanos(timestamp);
-                let (topic, calib_topic, i) = match side {
-                    Side::Left => (Topic::LeftImage, Topic::LeftCalibration, 0),
-                    Side::Right => (Topic::RightImage, Topic::RightCalibration, 1),
+                let (calib_topic, i) = match side {
+                    Side::Left => (Topic::LeftCalibration, 0),
+                    Side::Right => (Topic::RightCalibration, 1),
                 };
-                let (encoding, bpp) = match format {
-                    PixelFormat::Rgb8 => ("rgb8", 3),
-                    PixelFormat::Grey8 => ("mono8", 1),
-                };
-                let image = RawImage {
-                    timestamp: Some(timestamp_of(t)),
-                    frame_id: side.name().to_string(),
-                    width,
-                    height,
-                    encoding: encoding.into(),
-                    step: width * bpp,
-                    data: foxglove::bytes::Bytes::copy_from_slice(&pixels[..len.min(pixels.len())]),
+                let data =
+                    foxglove::bytes::Bytes::copy_from_slice(&pixels[..len.min(pixels.len())]);
+                let (topic, image) = match format {
+                    Some(format) => {
+                        let (encoding, bpp) = match format {
+                            PixelFormat::Rgb8 => ("rgb8", 3),
+                            PixelFormat::Grey8 => ("mono8", 1),
+                        };
+                        let topic = [Topic::LeftImage, Topic::RightImage][i];
+                        let image = RawImage {
+                            timestamp: Some(timestamp_of(t)),
+                            frame_id: side.name().to_string(),
+                            width,
+                            height,
+                            encoding: encoding.into(),
+                            step: width * bpp,
+                            data,
+                        };
+                        (topic, FrameMsg::Raw(image))
+                    }
+                    None => {
+                        let topic = [Topic::LeftCompressed, Topic::RightCompressed][i];
+                        let image = CompressedImage {
+                            timestamp: Some(timestamp_of(t)),
+                            frame_id: side.name().to_string(),
+                            data,
+                            format: "jpeg".into(),
+                        };
+                        (topic, FrameMsg::Jpeg(image))
+                    }
                 };
                 self.returns.frame(pixels);
                 let first = self.report.frames[i] == 0;
@@ -310,13 +328,19 @@ impl WriterLoop {
                     self.write_file(calib_topic, t, &calib);
                     self.write_file(Topic::Transforms, t, &transforms);
                 }
-                self.write_file(topic, t, &image);
+                match &image {
+                    FrameMsg::Raw(m) => self.write_file(topic, t, m),
+                    FrameMsg::Jpeg(m) => self.write_file(topic, t, m),
+                }
                 if let Some(live) = &mut self.live
                     && live.due(topic, t)
                 {
                     live.log(calib_topic, t, &calib);
                     live.log(Topic::Transforms, t, &transforms);
-                    live.log(topic, t, &image);
+                    match &image {
+                        FrameMsg::Raw(m) => live.log(topic, t, m),
+                        FrameMsg::Jpeg(m) => live.log(topic, t, m),
+                    }
                 }
             }
             Record::Flies { at, flies, points } => {
@@ -413,6 +437,12 @@ impl WriterLoop {
             }
         }
     }
+}
+
+/// A camera frame as written: packed pixels, or an MJPEG camera's JPEG.
+enum FrameMsg {
+    Raw(RawImage),
+    Jpeg(CompressedImage),
 }
 
 /// `drive.mcap` -> `drive.1.mcap`.
@@ -559,6 +589,7 @@ fn index(topic: Topic) -> usize {
 fn foxglove_schema(topic: Topic) -> foxglove::Schema {
     let schema = match topic {
         Topic::LeftImage | Topic::RightImage => RawImage::get_schema(),
+        Topic::LeftCompressed | Topic::RightCompressed => CompressedImage::get_schema(),
         Topic::LeftCalibration | Topic::RightCalibration => CameraCalibration::get_schema(),
         Topic::Flies => PointCloud::get_schema(),
         Topic::Transforms => FrameTransforms::get_schema(),
@@ -833,8 +864,8 @@ impl Live {
     /// Whether a throttled topic may send at `t` (and, if so, counts it as sent).
     fn due(&mut self, topic: Topic, t: u64) -> bool {
         let (i, period) = match topic {
-            Topic::LeftImage => (0, self.options.image_period),
-            Topic::RightImage => (1, self.options.image_period),
+            Topic::LeftImage | Topic::LeftCompressed => (0, self.options.image_period),
+            Topic::RightImage | Topic::RightCompressed => (1, self.options.image_period),
             Topic::Flies => (2, self.options.flies_period),
             _ => return true,
         };

@@ -362,9 +362,9 @@ impl ReplayRecording {
     ) {
         use crate::daemon::pairer::Side;
         for (side, image) in [(Side::Left, &frame.left), (Side::Right, &frame.right)] {
-            if let Some((format, pixels)) = image.pixels() {
+            if let Some(frame) = image.pixels() {
                 let size = (image.width(), image.height());
-                self.recorder.frame(side, at, size, format, pixels);
+                self.recorder.frame(side, at, size, frame);
             }
         }
         let ns = crate::record::nanos(at);

@@ -26,6 +26,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use crate::bus::MemoryBus;
+use crate::capture::{CaptureFormat, FrameConverter};
 use crate::config::{ConfigError, DaemonConfig};
 use crate::daemon::pairer::Side;
 use crate::record::nanos;
@@ -36,7 +37,7 @@ use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::clock::ManualClock;
 use flyd_core::decision::{Decider, DecisionConfigError, DecisionInput};
 use flyd_core::engine::EngineError;
-use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::frame::{FrameError, PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::motion::{MotionMonitor, VehicleMotion};
 use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::status::FaultBits;
@@ -66,6 +67,8 @@ pub enum RecordedError {
     Can(#[from] CanConfigError),
     #[error("the replay's recording")]
     Record(#[from] crate::record::WriterError),
+    #[error("a recorded JPEG frame")]
+    Jpeg(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
 
 /// Where a replay first differs from its recording.
@@ -239,6 +242,7 @@ fn replay_perception(
         })
     };
     let mut stereo = StereoFrame::new(image()?, image()?, 0);
+    let mut mjpeg = None;
     let mut outcomes: Vec<Option<Outcome>> = vec![None];
     let mut pending: [VecDeque<Frame>; 2] = [VecDeque::new(), VecDeque::new()];
     let mut next = 0;
@@ -300,10 +304,16 @@ fn replay_perception(
                     Side::Left => &mut stereo.left,
                     Side::Right => &mut stereo.right,
                 };
-                image.prepare(frame.format, &frame.pixels)?;
-                if let (Some(r), Some((format, pixels))) = (recorder, image.pixels()) {
+                match frame.format {
+                    Some(format) => image.prepare(format, &frame.pixels)?,
+                    // An MJPEG camera's frame: decoded and prepared as the capture thread did.
+                    None => jpeg(&mut mjpeg, w, h)?
+                        .prepare(&frame.pixels, image)
+                        .map_err(|e| RecordedError::Jpeg(Box::new(e)))?,
+                }
+                if let (Some(r), Some(retained)) = (recorder, image.pixels()) {
                     let at = Duration::from_nanos(frame.timestamp_ns);
-                    r.frame(side, at, (w, h), format, pixels);
+                    r.frame(side, at, (w, h), retained);
                 }
             }
         }
@@ -344,6 +354,22 @@ fn replay_perception(
     }
     summary.generations = generation;
     Ok(outcomes)
+}
+
+/// The MJPEG converter the capture thread uses (RGB out), made on the first JPEG frame.
+fn jpeg(
+    slot: &mut Option<FrameConverter>,
+    w: u32,
+    h: u32,
+) -> Result<&mut FrameConverter, RecordedError> {
+    if slot.is_none() {
+        let max = w as usize * h as usize * 3;
+        let c = FrameConverter::new(CaptureFormat::Mjpg, w, h, 0, PixelFormat::Rgb8, max)
+            .map_err(|e| RecordedError::Jpeg(Box::new(e)))?;
+        *slot = Some(c);
+    }
+    slot.as_mut()
+        .ok_or_else(|| RecordedError::Jpeg(Box::new(std::io::Error::other("no MJPEG converter"))))
 }
 
 fn step(

@@ -28,6 +28,8 @@ class JsonFactory(BaseFactory):
 SCHEMAS = {
     "/camera/left/image": ("foxglove.RawImage", "protobuf"),
     "/camera/right/image": ("foxglove.RawImage", "protobuf"),
+    "/camera/left/image/compressed": ("foxglove.CompressedImage", "protobuf"),
+    "/camera/right/image/compressed": ("foxglove.CompressedImage", "protobuf"),
     "/camera/left/calibration": ("foxglove.CameraCalibration", "protobuf"),
     "/camera/right/calibration": ("foxglove.CameraCalibration", "protobuf"),
     "/tf": ("foxglove.FrameTransforms", "protobuf"),
@@ -94,7 +96,9 @@ def main():
             if message.log_time < last_time[topic]:
                 backwards[topic] += 1
             last_time[topic] = message.log_time
-            if topic.endswith("/image"):
+            if topic.endswith("/compressed"):
+                errors.append(f"{topic}: a JPEG from mock cameras delivering raw frames")
+            elif topic.endswith("/image"):
                 image_shapes.add((decoded.width, decoded.height, decoded.encoding, len(decoded.data)))
                 check(decoded.timestamp.ToNanoseconds() == message.log_time,
                       f"{topic}: header stamp != log time")

@@ -133,11 +133,23 @@ pub struct PreparedImage {
     pixels: Option<RetainedPixels>,
 }
 
+/// What a retained frame was prepared from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Retained<'a> {
+    /// Its packed pixels.
+    Raw(PixelFormat, &'a [u8]),
+    /// The JPEG its pixels were decoded from (RGB).
+    Jpeg(&'a [u8]),
+}
+
 /// The last prepared frame's packed pixels: `buffer[..len]` (sized for RGB at the start, so
 /// that neither a refill nor a clone of the image reallocates it).
 #[derive(Debug, Clone)]
 struct RetainedPixels {
     format: PixelFormat,
+    /// `buffer[..len]` holds the frame's JPEG (what [`PreparedImage::retain_encoded`] kept)
+    /// instead of its pixels.
+    jpeg: bool,
     len: usize,
     buffer: Vec<u8>,
 }
@@ -214,17 +226,40 @@ impl PreparedImage {
     pub fn retain_pixels(mut self) -> Self {
         self.pixels = Some(RetainedPixels {
             format: PixelFormat::Rgb8,
+            jpeg: false,
             len: 0,
             buffer: vec![0; self.width * self.height * 3],
         });
         self
     }
 
-    /// The packed pixels of the last prepare, when retained ([`PreparedImage::retain_pixels`]).
-    pub fn pixels(&self) -> Option<(PixelFormat, &[u8])> {
-        self.pixels
-            .as_ref()
-            .map(|p| (p.format, &p.buffer[..p.len.min(p.buffer.len())]))
+    /// What the last prepare was made from, when retained ([`PreparedImage::retain_pixels`]):
+    /// its packed pixels, or the JPEG they were decoded from ([`Self::retain_encoded`]).
+    pub fn pixels(&self) -> Option<Retained<'_>> {
+        self.pixels.as_ref().map(|p| {
+            let bytes = &p.buffer[..p.len.min(p.buffer.len())];
+            if p.jpeg {
+                Retained::Jpeg(bytes)
+            } else {
+                Retained::Raw(p.format, bytes)
+            }
+        })
+    }
+
+    /// After a prepare from the pixels decoded from `jpeg` (an MJPEG camera's frame): keeps
+    /// `jpeg` instead of those pixels, when pixels are retained and it fits their buffer (a
+    /// JPEG larger than the raw frame keeps the pixels). Returns whether it was kept.
+    pub fn retain_encoded(&mut self, jpeg: &[u8]) -> bool {
+        let Some(kept) = self.pixels.as_mut() else {
+            return false;
+        };
+        let Some(to) = kept.buffer.get_mut(..jpeg.len()) else {
+            return false;
+        };
+        to.copy_from_slice(jpeg);
+        kept.len = jpeg.len();
+        kept.jpeg = true;
+        true
     }
 
     /// Prepares a new image from packed pixels.
@@ -310,6 +345,7 @@ impl PreparedImage {
             to.copy_from_slice(pixels);
             kept.len = pixels.len();
             kept.format = format;
+            kept.jpeg = false;
         }
         self.channels = match format {
             PixelFormat::Rgb8 => 3,
@@ -537,6 +573,37 @@ impl StereoFrame {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn retained_pixels_or_the_jpeg_they_came_from() {
+        let px = vec![9u8; 16 * 16 * 3];
+        let mut plain = PreparedImage::new(16, 16).expect("image");
+        plain.prepare(PixelFormat::Rgb8, &px).expect("prepare");
+        assert_eq!(plain.pixels(), None, "not retained unless asked");
+        assert!(!plain.retain_encoded(&[1, 2, 3]));
+        let mut kept = PreparedImage::new(16, 16).expect("image").retain_pixels();
+        kept.prepare(PixelFormat::Rgb8, &px).expect("prepare");
+        assert_eq!(
+            kept.pixels(),
+            Some(Retained::Raw(PixelFormat::Rgb8, &px[..]))
+        );
+        assert!(kept.retain_encoded(&[0xFF, 0xD8, 0xFF, 0xD9]));
+        assert_eq!(
+            kept.pixels(),
+            Some(Retained::Jpeg(&[0xFF, 0xD8, 0xFF, 0xD9][..]))
+        );
+        // A JPEG larger than the raw frame keeps the pixels.
+        kept.prepare(PixelFormat::Grey8, &px[..256])
+            .expect("prepare");
+        assert!(!kept.retain_encoded(&vec![0; 16 * 16 * 3 + 1]));
+        assert_eq!(
+            kept.pixels(),
+            Some(Retained::Raw(PixelFormat::Grey8, &px[..256]))
+        );
+        // A clone keeps its buffer (no reallocation on its first frame).
+        assert_eq!(kept.clone().pixels(), kept.pixels());
+    }
+
     use super::*;
 
     #[test]
