@@ -10,6 +10,7 @@
 //! Needs target/py (scripts/prereqs installs it); without it the reader check fails with
 //! a message, unless FLYD_ALLOW_NO_PY is set, in which case it prints SKIP.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -36,6 +37,30 @@ fn logged(stderr: &str, message: &str) -> serde_json::Value {
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .find(|v| v["message"] == message)
         .unwrap_or_else(|| panic!("no {message:?} log line in {stderr}"))
+}
+
+/// `flyd replay --mcap MCAP ARGS...`: whether it succeeded, its JSON summary (null when it
+/// printed none) and its stderr.
+fn replay(mcap: &Path, args: &[&OsStr]) -> (bool, serde_json::Value, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args([OsStr::new("replay"), OsStr::new("--mcap"), mcap.as_os_str()])
+        .args(args)
+        .output()
+        .expect("flyd replay runs");
+    let summary = serde_json::from_slice(&out.stdout).unwrap_or(serde_json::Value::Null);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out.status.success(), summary, stderr)
+}
+
+/// [`replay`], which must succeed: its summary.
+fn replay_ok(mcap: &Path, args: &[&OsStr]) -> serde_json::Value {
+    let (ok, summary, stderr) = replay(mcap, args);
+    assert!(
+        ok,
+        "flyd replay --mcap {}: {summary}\n{stderr}",
+        mcap.display()
+    );
+    summary
 }
 
 struct Recorded {
@@ -137,19 +162,7 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
     }
 
     // The replay: the same command frames, byte for byte.
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .output()
-        .expect("flyd replay runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    let summary = replay_ok(&r.mcap, &[]);
     println!("replay: {summary}");
     let commands = std::fs::read_to_string(&r.log)
         .expect("can log")
@@ -179,31 +192,8 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
 
     // The replay can record itself; that recording replays bit for bit again.
     let again = r.mcap.with_file_name("replayed.mcap");
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .arg("--record")
-        .arg(&again)
-        .output()
-        .expect("flyd replay runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&again)
-        .output()
-        .expect("flyd replay runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let twice: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    replay_ok(&r.mcap, &[OsStr::new("--record"), again.as_os_str()]);
+    let twice = replay_ok(&again, &[]);
     assert_eq!(
         twice["commands_identical"].as_u64(),
         Some(commands as u64),
@@ -212,16 +202,8 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
     assert_eq!(twice["changes"], summary["changes"]);
 
     // Another seed is another population: the replay says where it parts.
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .arg("--seed")
-        .arg("7")
-        .output()
-        .expect("flyd replay runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "another seed must diverge");
+    let (ok, _, stderr) = replay(&r.mcap, &[OsStr::new("--seed"), OsStr::new("7")]);
+    assert!(!ok, "another seed must diverge");
     assert!(
         stderr.contains("diverges from the recording (perception)"),
         "{stderr}"
@@ -232,14 +214,8 @@ fn the_recorded_demo_reads_back_with_third_party_readers_and_replays_bit_for_bit
 fn a_recording_without_images_still_holds_the_decisions_and_cannot_be_replayed() {
     let r = record_demo("[record]\nimages = false\nflies_every = 50\n");
     assert_eq!(r.closed["frames_left"], 0, "{}", r.closed);
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .output()
-        .expect("flyd replay runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    let (ok, _, stderr) = replay(&r.mcap, &[]);
+    assert!(!ok);
     assert!(stderr.contains("has no images"), "{stderr}");
     let size = std::fs::metadata(&r.mcap).expect("file").len();
     println!("5 s of the demo without images: {size} bytes");
@@ -470,18 +446,7 @@ fn a_file_size_limit_hit_mid_run_stops_the_recording_not_the_perception() {
         .count();
     assert!(commands >= 120, "{commands} commands in 3 s");
     // What was written before the limit replays, as far as it goes.
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&mcap)
-        .output()
-        .expect("flyd replay runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    let s = replay_ok(&mcap, &[]);
     assert_eq!(s["complete"], false, "{s}");
     assert!(s["commands_recorded"].as_u64() > Some(5), "{s}");
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
@@ -568,19 +533,7 @@ fn a_drive_with_the_vehicles_motion_replays_with_its_received_frames_and_moved_f
         predicted > 50,
         "{predicted} pairs with the flies moved at 30 km/h"
     );
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .output()
-        .expect("flyd replay runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    let s = replay_ok(&r.mcap, &[]);
     println!("replay: {s}");
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     assert!(s["commands_recorded"].as_u64() > Some(100), "{s}");
@@ -608,19 +561,7 @@ fn generations_on_the_last_pair_after_the_cameras_stop_replay_too() {
         "{}",
         r.stopped
     );
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .output()
-        .expect("flyd replay runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    let s = replay_ok(&r.mcap, &[]);
     // Up to the last generation the decision took: the daemon's last, but for the few its
     // evolution ran while the control thread was already shutting down.
     let (replayed, ran) = (
@@ -665,25 +606,9 @@ fn commands_decided_on_the_newest_snapshot_again_replay_and_record_again() {
         latest > 20,
         "{latest} commands on the newest snapshot again"
     );
-    let replay = |mcap: &Path, record: Option<&Path>| {
-        let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-            .arg("replay")
-            .arg("--mcap")
-            .arg(mcap)
-            .args(record.iter().flat_map(|p| [Path::new("--record"), p]))
-            .output()
-            .expect("flyd replay runs");
-        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-        assert!(
-            out.status.success(),
-            "{stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        serde_json::from_str::<serde_json::Value>(&stdout).expect("summary")
-    };
     let again = r.mcap.with_file_name("again.mcap");
-    let first = replay(&r.mcap, Some(&again));
-    let second = replay(&again, None);
+    let first = replay_ok(&r.mcap, &[OsStr::new("--record"), again.as_os_str()]);
+    let second = replay_ok(&again, &[]);
     for s in [&first, &second] {
         assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
         assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
@@ -728,19 +653,7 @@ fn an_mjpeg_camera_is_recorded_as_its_jpeg_and_replays_bit_for_bit() {
     assert_eq!(decoded.format, "jpeg");
     let picture = image::load_from_memory(&decoded.data).expect("a JPEG");
     assert_eq!((picture.width(), picture.height()), (640, 480));
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("replay")
-        .arg("--mcap")
-        .arg(&r.mcap)
-        .output()
-        .expect("flyd replay runs");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    let s = replay_ok(&r.mcap, &[]);
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
     assert!(
