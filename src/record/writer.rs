@@ -316,7 +316,6 @@ impl WriterLoop {
                     }
                 };
                 self.returns.frame(pixels);
-                let first = self.report.frames[i] == 0;
                 self.report.frames[i] += 1;
                 let mut calib = self.calibrations[i].clone();
                 calib.timestamp = Some(timestamp_of(t));
@@ -324,8 +323,18 @@ impl WriterLoop {
                 for tf in &mut transforms.transforms {
                     tf.timestamp = Some(timestamp_of(t));
                 }
-                if first || self.file.as_ref().is_some_and(|f| f.needs(calib_topic)) {
-                    self.write_file(calib_topic, t, &calib);
+                // A file carries both calibrations from its first frame on: a part that
+                // rotation ends after one camera's frame still stands alone.
+                const CALIBRATIONS: [Topic; 2] = [Topic::LeftCalibration, Topic::RightCalibration];
+                let missing = CALIBRATIONS.map(|c| self.file.as_ref().is_some_and(|f| f.needs(c)));
+                for (c, topic) in CALIBRATIONS.into_iter().enumerate() {
+                    if missing[c] {
+                        let mut calib = self.calibrations[c].clone();
+                        calib.timestamp = Some(timestamp_of(t));
+                        self.write_file(topic, t, &calib);
+                    }
+                }
+                if missing.contains(&true) {
                     self.write_file(Topic::Transforms, t, &transforms);
                 }
                 match &image {
@@ -982,6 +991,72 @@ mod tests {
         }
         assert_eq!(stats_seen, 3, "every record in exactly one part");
         assert!(!report.failed);
+    }
+
+    #[test]
+    fn a_part_holding_one_cameras_frames_still_carries_both_calibrations() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("c.mcap");
+        let (recorder, rx, returns) = super::super::channel(super::super::RecorderSizes {
+            queue: 16,
+            width: 8,
+            height: 8,
+            flies: 4,
+            images: true,
+            flies_every: 1,
+            fps: 10.0,
+        });
+        let options = RecordOptions {
+            path: Some(path),
+            rotate_bytes: None,
+            rotate_after: Some(Duration::from_millis(30)),
+            compression: true,
+            live: None,
+            config_text: None,
+            metadata: BTreeMap::new(),
+        };
+        let rig = crate::mock::mock_rig(320, 240).expect("rig");
+        let counters = recorder.counters().clone();
+        let writer = spawn_writer(options, &rig, rx, returns, counters).expect("writer");
+        let pixels = [0u8; 8 * 8 * 3];
+        for t in 0..3 {
+            // The left camera only, as when a part ends between a left and a right frame.
+            recorder.frame(
+                Side::Left,
+                Duration::from_millis(t),
+                (8, 8),
+                flyd_core::frame::Retained::Raw(PixelFormat::Rgb8, &pixels),
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        drop(recorder);
+        let report = writer.handle.join().expect("writer ends");
+        assert!(report.files.len() >= 3, "{report:?}");
+        let mut parts_with_frames = 0;
+        for file in &report.files {
+            let data = std::fs::read(file).expect("part");
+            let topics: Vec<String> = mcap::MessageStream::new(&data)
+                .expect("messages")
+                .filter_map(|m| m.ok().map(|m| m.channel.topic.clone()))
+                .collect();
+            if !topics.iter().any(|t| t == "/camera/left/image") {
+                continue; // the last part may open after the last frame
+            }
+            parts_with_frames += 1;
+            let mut calibrations: Vec<&str> = topics
+                .iter()
+                .map(String::as_str)
+                .filter(|t| t.ends_with("/calibration"))
+                .collect();
+            calibrations.sort_unstable();
+            assert_eq!(
+                calibrations,
+                ["/camera/left/calibration", "/camera/right/calibration"],
+                "{}",
+                file.display()
+            );
+        }
+        assert!(parts_with_frames >= 2, "frames in more than one part: {report:?}");
     }
 
     #[test]
