@@ -1056,7 +1056,10 @@ mod tests {
                 file.display()
             );
         }
-        assert!(parts_with_frames >= 2, "frames in more than one part: {report:?}");
+        assert!(
+            parts_with_frames >= 2,
+            "frames in more than one part: {report:?}"
+        );
     }
 
     #[test]
