@@ -1118,7 +1118,7 @@ fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it
 
     // Before the first frame: no motion, MotionFault, and STOP at the assumed 30 km/h once the
     // pedestrian (there from the start) is confirmed: under TCG that took up to ~3 s after
-    // RUNNING, which is why canplayer starts at feeder frame 40.
+    // RUNNING, which is why the scenario starts canplayer a second after flyd logs that STOP.
     let before = window(running, first);
     assert!(
         !before.is_empty() && before.iter().all(fault),
