@@ -455,6 +455,7 @@ impl DaemonConfig {
             rig,
             depth_range: None,
             has_road: true,
+            right_row_offset_px: 0.0,
         };
         let cal = match &self.calibration {
             CalibrationSource::Rig(rig) => built((**rig).clone()),

@@ -230,7 +230,11 @@ pub fn run(
 ) -> Result<RunReport, DaemonError> {
     let can = can.into();
     let (width, height) = (config.cameras.width, config.cameras.height);
-    let rig = config.load_rig()?;
+    let flyd_core::calib::Calibration {
+        rig,
+        right_row_offset_px,
+        ..
+    } = config.load_calibration()?;
     for source in [&cameras.0, &cameras.1] {
         let (w, h) = source.size();
         if (w, h) != (width, height) {
@@ -263,9 +267,12 @@ pub fn run(
             }
         })
     };
+    // The right camera's images carry the calibration's row correction (they stay on their
+    // side: the evolution thread swaps left with left, right with right).
+    let right_image = || image().map(|i| i.with_row_shift(right_row_offset_px));
     let (left_writer, left_reader) = frame_ring_of(image()?);
-    let (right_writer, right_reader) = frame_ring_of(image()?);
-    let stereo = StereoFrame::new(image()?, image()?, 0);
+    let (right_writer, right_reader) = frame_ring_of(right_image()?);
+    let stereo = StereoFrame::new(image()?, right_image()?, 0);
     let (snapshot_tx, snapshot_rx) = crossbeam_channel::bounded(config.evolution.snapshot_queue);
 
     let stop = Shutdown::new();

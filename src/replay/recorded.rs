@@ -228,7 +228,11 @@ fn replay_perception(
     recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
 ) -> Result<Vec<Option<Outcome>>, RecordedError> {
-    let rig = config.load_rig()?;
+    let flyd_core::calib::Calibration {
+        rig,
+        right_row_offset_px,
+        ..
+    } = config.load_calibration()?;
     let (w, h) = (config.cameras.width, config.cameras.height);
     let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
@@ -241,7 +245,8 @@ fn replay_perception(
             }
         })
     };
-    let mut stereo = StereoFrame::new(image()?, image()?, 0);
+    let right = image()?.with_row_shift(right_row_offset_px);
+    let mut stereo = StereoFrame::new(image()?, right, 0);
     let mut mjpeg = None;
     let mut outcomes: Vec<Option<Outcome>> = vec![None];
     let mut pending: [VecDeque<Frame>; 2] = [VecDeque::new(), VecDeque::new()];

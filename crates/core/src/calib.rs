@@ -53,7 +53,7 @@ mod tests;
 pub use kitti::{KITTI_CAMERA_HEIGHT, KittiImport, parse_kitti};
 pub use middlebury::parse_middlebury;
 pub use opencv::{OpenCvImport, Unit, parse_opencv_yaml};
-pub use rig::parse_rig_toml;
+pub use rig::{MAX_RIGHT_ROW_OFFSET, parse_rig_toml};
 
 /// A stereo rig loaded from a calibration file, with what the file implies about the scene.
 #[derive(Debug, Clone, PartialEq)]
@@ -65,6 +65,10 @@ pub struct Calibration {
     /// Whether the scene has a road at y = 0 (false for datasets such as Middlebury: the engine
     /// then disables its road region-of-interest penalties).
     pub has_road: bool,
+    /// Where the right image shows a left row, rows (`rectification.right_row_offset_px` of a
+    /// rig file; 0 for the other formats): what [`crate::frame::PreparedImage::with_row_shift`]
+    /// corrects the right image by.
+    pub right_row_offset_px: f64,
 }
 
 impl Calibration {

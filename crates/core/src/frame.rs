@@ -131,6 +131,8 @@ pub struct PreparedImage {
     /// The packed pixels of the last [`PreparedImage::prepare`], kept only when
     /// [`PreparedImage::retain_pixels`] asked for them (a recorder copies them out).
     pixels: Option<RetainedPixels>,
+    /// Vertical shift applied by every prepare, 1/256 px ([`PreparedImage::with_row_shift`]).
+    row_shift_q8: i32,
 }
 
 /// What a retained frame was prepared from.
@@ -198,6 +200,9 @@ impl RawStats {
 /// Side of the blocks of [`PreparedImage::block_means`], pixels.
 pub const BLOCK: usize = 16;
 
+/// The largest vertical shift [`PreparedImage::with_row_shift`] applies, pixels.
+pub const MAX_ROW_SHIFT: f64 = 4.0;
+
 impl PreparedImage {
     /// An all-black image of the given size.
     pub fn new(width: u32, height: u32) -> Result<Self, FrameError> {
@@ -217,7 +222,24 @@ impl PreparedImage {
             block_means: vec![0; w.div_ceil(BLOCK) * h.div_ceil(BLOCK)],
             raw: RawStats::default(),
             pixels: None,
+            row_shift_q8: 0,
         })
+    }
+
+    /// Row `y` of every later prepare shows row `y + px` of the pixels it is given (linear
+    /// interpolation between rows, edge rows repeated): how a rectified pair's residual
+    /// vertical misalignment is corrected on the right image ([`crate::rectification`]).
+    /// `px` is clamped to +-[`MAX_ROW_SHIFT`] and kept to 1/256 px; 0 (the default) leaves
+    /// the pixels as they are.
+    pub fn with_row_shift(mut self, px: f64) -> Self {
+        let px = if px.is_finite() { px } else { 0.0 };
+        self.row_shift_q8 = (px.clamp(-MAX_ROW_SHIFT, MAX_ROW_SHIFT) * 256.0).round() as i32;
+        self
+    }
+
+    /// The vertical shift of [`Self::with_row_shift`], pixels.
+    pub fn row_shift(&self) -> f64 {
+        f64::from(self.row_shift_q8) / 256.0
     }
 
     /// Keeps a copy of the packed pixels each [`PreparedImage::prepare`] is given (what a
@@ -402,9 +424,39 @@ impl PreparedImage {
                 }
             }
         }
+        if self.row_shift_q8 != 0 {
+            self.shift_rows();
+        }
         self.fill_gradient();
         self.replicate_border();
         self.fill_block_means();
+    }
+
+    /// Resamples the colour rows and the luma plane in place by the row shift: row `y`
+    /// becomes `(1 - a) row(y + k) + a row(y + k + 1)` with `k + a` the shift (source rows
+    /// clamped to the image). A non-negative `k` reads rows at or below `y` only, so the rows
+    /// are visited top down; a negative one bottom up. No allocation.
+    fn shift_rows(&mut self) {
+        let (w, h) = (self.width, self.height);
+        let k = self.row_shift_q8.div_euclid(256) as isize;
+        let a = self.row_shift_q8.rem_euclid(256) as u16;
+        let src = |y: usize, d: isize| (y as isize + d).clamp(0, h as isize - 1) as usize;
+        let blend = |p: u8, q: u8| ((u16::from(p) * (256 - a) + u16::from(q) * a + 128) >> 8) as u8;
+        for i in 0..h {
+            let y = if k >= 0 { i } else { h - 1 - i };
+            let (y0, y1) = (src(y, k), src(y, k + 1));
+            let (o, o0, o1) = (
+                self.offset(0, y as isize),
+                self.offset(0, y0 as isize),
+                self.offset(0, y1 as isize),
+            );
+            for x in 0..w * BPP {
+                self.data[o + x] = blend(self.data[o0 + x], self.data[o1 + x]);
+            }
+            for x in 0..w {
+                self.luma[y * w + x] = blend(self.luma[y0 * w + x], self.luma[y1 * w + x]);
+            }
+        }
     }
 
     /// Per-channel affine maps that give each channel of this frame the same mean
@@ -573,6 +625,36 @@ impl StereoFrame {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_row_shift_reads_each_row_that_far_down() {
+        let (w, h) = (16usize, 12usize);
+        let px: Vec<u8> = (0..w * h * 3)
+            .map(|i| ((i / (w * 3)) * 20 + i % 3) as u8)
+            .collect();
+        let plain = PreparedImage::from_pixels(16, 12, PixelFormat::Rgb8, &px).expect("plain");
+        let shifted = |s: f64| {
+            let mut img = PreparedImage::new(16, 12).expect("image").with_row_shift(s);
+            img.prepare(PixelFormat::Rgb8, &px).expect("prepare");
+            img
+        };
+        let (down, up, half) = (shifted(1.0), shifted(-2.0), shifted(0.5));
+        for y in 2..h as u32 - 2 {
+            for x in 0..w as u32 {
+                assert_eq!(down.colour(x, y), plain.colour(x, y + 1), "({x}, {y})");
+                assert_eq!(up.colour(x, y), plain.colour(x, y - 2), "({x}, {y})");
+                let (a, b) = (plain.colour(x, y), plain.colour(x, y + 1));
+                for c in 0..3 {
+                    let mid = (u16::from(a[c]) + u16::from(b[c])).div_ceil(2) as u8;
+                    assert!(half.colour(x, y)[c].abs_diff(mid) <= 1, "({x}, {y})");
+                }
+            }
+        }
+        // The last rows repeat the edge; 0 and non-finite shifts change nothing.
+        assert_eq!(down.colour(3, 11), plain.colour(3, 11));
+        assert_eq!(shifted(f64::NAN).data(), plain.data());
+        assert_eq!(shifted(0.0).data(), plain.data());
+        assert_eq!(shifted(100.0).row_shift(), MAX_ROW_SHIFT);
+    }
 
     #[test]
     fn retained_pixels_or_the_jpeg_they_came_from() {

@@ -228,6 +228,7 @@ pub fn parse_kitti(
         rig,
         depth_range: None,
         has_road: true,
+        right_row_offset_px: 0.0,
     })
 }
 

@@ -240,6 +240,7 @@ pub fn parse_middlebury(text: &str, origin: &Path) -> Result<Calibration, CalibE
         rig,
         depth_range: Some(depth_range),
         has_road: false,
+        right_row_offset_px: 0.0,
     })
 }
 

@@ -118,6 +118,7 @@ pub fn parse_opencv_yaml(
         rig: build_rig(text, origin, opts, None)?,
         depth_range: None,
         has_road: true,
+        right_row_offset_px: 0.0,
     })
 }
 

@@ -58,6 +58,14 @@
 //! max_depth = 25.0
 //! road = true                 # default true
 //! ```
+//!
+//! and an optional row correction of a rectified pair (what `flyd replay` measures as
+//! `row_offset.residual_px`; [`crate::rectification`]):
+//!
+//! ```toml
+//! [rectification]
+//! right_row_offset_px = -0.5  # row y of the right image is read at y - 0.5; |x| <= 2
+//! ```
 
 use std::path::{Path, PathBuf};
 
@@ -79,6 +87,13 @@ struct RigFile {
     import: Option<ImportToml>,
     mount: Option<MountToml>,
     search: Option<SearchToml>,
+    rectification: Option<RectificationToml>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RectificationToml {
+    right_row_offset_px: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -167,6 +182,21 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
     if let Some(range) = depth_range {
         check_depth_range(origin, range, min, max)?;
     }
+    let right_row_offset_px = file
+        .rectification
+        .unwrap_or_default()
+        .right_row_offset_px
+        .unwrap_or(0.0);
+    if !(right_row_offset_px.is_finite() && right_row_offset_px.abs() <= MAX_RIGHT_ROW_OFFSET) {
+        return Err(field_error(
+            origin,
+            "rectification.right_row_offset_px",
+            format!(
+                "{right_row_offset_px} px: a rectified pair more than {MAX_RIGHT_ROW_OFFSET} px \
+                 off vertically needs rectifying again, not a row shift"
+            ),
+        ));
+    }
     if let Some(import) = &file.import {
         if file.left.is_some() || file.right.is_some() || file.opencv.is_some() {
             return Err(field_error(
@@ -180,6 +210,7 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
             rig,
             depth_range,
             has_road: search.road.unwrap_or(true),
+            right_row_offset_px,
         });
     }
     let rig = match (file.left, file.right, file.opencv) {
@@ -217,8 +248,12 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
         rig,
         depth_range,
         has_road: search.road.unwrap_or(true),
+        right_row_offset_px,
     })
 }
+
+/// The largest `rectification.right_row_offset_px` a rig file may give, pixels.
+pub const MAX_RIGHT_ROW_OFFSET: f64 = 2.0;
 
 fn explicit_rig(
     file: &Path,

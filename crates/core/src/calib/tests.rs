@@ -550,6 +550,26 @@ fn rig_toml_right_camera_may_state_its_own_size() {
     assert!(calib.has_road);
 }
 
+#[test]
+fn rig_toml_rectification_gives_the_right_images_row_correction() {
+    let rig = "[left]\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\n\
+               position = [-0.1, 1.2, 0.0]\n\
+               [right]\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n\
+               position = [0.1, 1.2, 0.0]\n";
+    let parse = |extra: &str| parse_rig_toml(&format!("{rig}{extra}"), Path::new("inline.toml"));
+    assert_eq!(parse("").expect("valid").right_row_offset_px, 0.0);
+    let c = parse("[rectification]\nright_row_offset_px = -0.37\n").expect("valid");
+    assert_eq!(c.right_row_offset_px, -0.37);
+    for bad in ["2.5", "-3.0", "nan", "inf"] {
+        let e = parse(&format!("[rectification]\nright_row_offset_px = {bad}\n"))
+            .expect_err(bad)
+            .to_string();
+        assert!(e.contains("rectification.right_row_offset_px"), "{bad}: {e}");
+    }
+    let e = parse("[rectification]\nrow = 1\n").expect_err("unknown key");
+    assert!(e.to_string().contains("inline.toml"), "{e}");
+}
+
 /// Whatever a damaged file parses into is usable: every camera parameter finite, a depth range
 /// (if any) finite and ordered, and a point ahead projecting to a finite pixel or to none.
 fn check_usable(cal: &Calibration, what: &str) {
