@@ -235,6 +235,8 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
             args.fps
         );
     }
+    // The calibration's row correction of the right image (a scenario's rig needs none).
+    let mut right_row_shift = 0.0;
     let (mut feed, generations, per_frame, fps): (Box<dyn FrameFeed>, u64, u64, f64) = if let Some(
         name,
     ) =
@@ -250,7 +252,8 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
             bail!("--sequence needs --calib");
         };
         let (feed, cal) = SequenceFeed::open(dir, calib)?;
-        apply_calibration(&mut params, &cal);
+        cal.apply_to(&mut params);
+        right_row_shift = cal.right_row_offset_px;
         let per_frame = args
             .generations_per_frame
             .unwrap_or_else(|| replay::daemon_generations_per_frame(&config.evolution, args.fps))
@@ -264,7 +267,8 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
             );
         };
         let (feed, cal) = PairFeed::load(left, right, calib)?;
-        apply_calibration(&mut params, &cal);
+        cal.apply_to(&mut params);
+        right_row_shift = cal.right_row_offset_px;
         let generations = args.generations.unwrap_or(50);
         // A still camera filming the pair at 30 fps, 3 generations a frame (no change, so
         // no burst): what the daemon sees standing in front of that scene.
@@ -298,6 +302,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         fps,
         sensor: config.sensor,
         warmup_generations: config.evolution.warmup_generations,
+        right_row_shift,
     };
     let run = replay::run(feed.as_mut(), settings).context("replay")?;
     if let Some(recorder) = recorder {
@@ -404,12 +409,6 @@ fn replay_recording(path: &Path, args: &ReplayArgs) -> Result<()> {
             d.detail
         ),
     }
-}
-
-/// A recorded pair's calibration into the engine's parameters: its depth range, if it gives
-/// one, and no road region of interest for a rig the calibration does not place on a road.
-fn apply_calibration(params: &mut EngineParams, cal: &flyd_core::calib::Calibration) {
-    cal.apply_to(params);
 }
 
 fn parse_isa(name: &str) -> std::result::Result<flyd_core::isa::Isa, String> {

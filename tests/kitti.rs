@@ -34,13 +34,23 @@ const PAIRS: [&str; 4] = [
     "kitti2015_train_000001",
 ];
 
-/// `flyd replay` on a pair at 30 km/h (100 generations): the summary and the output folder.
-fn replay_pair(pair: &str) -> (serde_json::Value, tempfile::TempDir) {
+/// `flyd replay` on a pair at 30 km/h (100 generations, `seed`): the summary and the output
+/// folder.
+fn replay_pair(pair: &str, seed: u64) -> (serde_json::Value, tempfile::TempDir) {
     let dir = fixtures().join(pair);
     let out = tempfile::tempdir().expect("tempdir");
-    let mut args: Vec<std::ffi::OsString> = ["replay", "--generations", "100", "--speed", "30"]
-        .map(Into::into)
-        .into();
+    let seed = seed.to_string();
+    let mut args: Vec<std::ffi::OsString> = [
+        "replay",
+        "--generations",
+        "100",
+        "--speed",
+        "30",
+        "--seed",
+        &seed,
+    ]
+    .map(Into::into)
+    .into();
     for (flag, path) in [
         ("--left", dir.join("im0.png")),
         ("--right", dir.join("im1.png")),
@@ -55,7 +65,15 @@ fn replay_pair(pair: &str) -> (serde_json::Value, tempfile::TempDir) {
 #[test]
 fn real_roads_without_an_obstacle_are_clear_at_30_kmh() {
     for pair in PAIRS {
-        let (s, _out) = replay_pair(pair);
+        let (s, _out) = replay_pair(pair, 1);
+        // The rig's row correction (measured by flyd on the pair: docs/perception.md) leaves
+        // the rows aligned to a tenth of a pixel.
+        let rows = &s["row_offset"];
+        println!("{pair}: row offset {rows}");
+        assert!(
+            rows["residual_px"].as_f64().is_some_and(|r| r.abs() <= 0.1),
+            "{pair}: {rows}"
+        );
         let warmup = s["warmup_generations"].as_u64().expect("warmup");
         let nearest = s["per_frame"]
             .as_array()
@@ -123,9 +141,10 @@ fn read_flies(path: &Path) -> Vec<Fly> {
         .collect()
 }
 
-/// SGBM's disparities at `pixels` of the pair, from OpenCV in the Python scripts/prereqs
-/// installs (tests/kitti_sgbm.py); `None` when it is not there.
-fn sgbm_at(pair: &Path, pixels: &[(usize, usize)]) -> Option<Vec<f64>> {
+/// SGBM's disparities at `pixels` of the pair, its right image's rows corrected by `rows` px
+/// as flyd corrects them, from OpenCV in the Python scripts/prereqs installs
+/// (tests/kitti_sgbm.py); `None` when it is not there.
+fn sgbm_at(pair: &Path, rows: f64, pixels: &[(usize, usize)]) -> Option<Vec<f64>> {
     let python = std::env::var_os("FLYD_TEST_PYTHON")
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("target/py/bin/python3"));
@@ -134,6 +153,7 @@ fn sgbm_at(pair: &Path, pixels: &[(usize, usize)]) -> Option<Vec<f64>> {
         .arg(script)
         .arg(pair.join("im0.png"))
         .arg(pair.join("im1.png"))
+        .arg(rows.to_string())
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
@@ -166,50 +186,52 @@ fn agreement(pairs: impl Iterator<Item = (f64, f64)>) -> (f64, f64, usize) {
     (one as f64 / n1, three as f64 / n1, n)
 }
 
+/// Seeds the accuracy is pooled over: on one pair the unique flies gather on a few
+/// structures, and which ones a seed finds moves the figure by up to 20 points.
+const SEEDS: [u64; 3] = [1, 2, 3];
+
 #[test]
 fn the_flies_obstacles_are_built_from_agree_with_the_lidar_truth() {
     let mut sgbm_missing = false;
     for pair in PAIRS {
-        let (_, out) = replay_pair(pair);
-        let mut flies: Vec<Fly> = read_flies(&out.path().join("flies.csv"))
-            .into_iter()
-            .filter(|f| f.raw_fitness > 0.0 && f.ambiguity <= MAX_AMBIGUITY)
-            .collect();
-        flies.sort_by(|a, b| b.raw_fitness.total_cmp(&a.raw_fitness));
-        flies.truncate(BEST);
         let truth = read_pfm(&fixtures().join(pair).join("disp0.pfm")).expect("truth");
-        // (pixel, the fly's disparity, the truth) where the truth is known.
-        let known: Vec<((usize, usize), f64, f64)> = flies
-            .iter()
-            .filter_map(|f| {
+        // (pixel, the fly's disparity, the truth) where the truth is known, over the seeds.
+        let mut known: Vec<((usize, usize), f64, f64)> = Vec::new();
+        let mut rows = 0.0;
+        for seed in SEEDS {
+            let (s, out) = replay_pair(pair, seed);
+            rows = s["row_offset"]["applied_px"].as_f64().expect("row offset");
+            let mut flies: Vec<Fly> = read_flies(&out.path().join("flies.csv"))
+                .into_iter()
+                .filter(|f| f.raw_fitness > 0.0 && f.ambiguity <= MAX_AMBIGUITY)
+                .collect();
+            flies.sort_by(|a, b| b.raw_fitness.total_cmp(&a.raw_fitness));
+            flies.truncate(BEST);
+            known.extend(flies.iter().filter_map(|f| {
                 let (x, y) = (f.u_left.round() as usize, f.v_left.round() as usize);
                 let d = truth.get(x, y)?;
                 Some(((x, y), f.u_left - f.u_right, f64::from(d)))
-            })
-            .collect();
+            }));
+        }
         let (one, three, n) = agreement(known.iter().map(|&(_, d, t)| (d, t)));
         println!(
-            "{pair}: {} unique flies, {n} with truth: {:.1} % within 1 px, {:.1} % within 3 px",
-            flies.len(),
+            "{pair} (rows corrected by {rows} px), seeds {SEEDS:?}: {n} unique flies with truth: \
+             {:.1} % within 1 px, {:.1} % within 3 px",
             100.0 * one,
             100.0 * three
         );
         assert!(
-            n >= 50,
+            n >= 100,
             "{pair}: only {n} unique flies on pixels with truth"
         );
-        // Measured (docs/perception.md): within 3 px 99-100 % on the 2012 pairs, 86-92 % on
-        // the 2015 ones (the issue asks 95 %: not met, the flies with an ambiguity of 0.3-0.5
-        // are the misses; 0.3 makes 100 % but loses the car of the sequence test below); within
-        // 1 px 84-98 % except kitti2012_train_000000, 11-22 %: its LiDAR truth sits ~1.9 px from
-        // both the flies and SGBM on the far road those flies are on. Guards at the measured
-        // figures, not the issue's targets.
-        assert!(three >= 0.85, "{pair}: {:.1} % within 3 px", 100.0 * three);
-        if pair != "kitti2012_train_000000" {
-            assert!(one >= 0.80, "{pair}: {:.1} % within 1 px", 100.0 * one);
-        }
+        // Measured (docs/perception.md, seeds 1-3 pooled): within 1 px 82.7-95.1 %, within
+        // 3 px 94.2-100 % (the issue asks 80 % and 95 %: the 3 px target is missed by
+        // kitti2015_train_000000, whose misses are flies with an ambiguity of 0.3-0.5 on a
+        // repeated texture). Without the rigs' row corrections: 34-86 % and 69-100 %.
+        assert!(one >= 0.80, "{pair}: {:.1} % within 1 px", 100.0 * one);
+        assert!(three >= 0.92, "{pair}: {:.1} % within 3 px", 100.0 * three);
         let pixels: Vec<(usize, usize)> = known.iter().map(|&(p, _, _)| p).collect();
-        let Some(sgbm) = sgbm_at(&fixtures().join(pair), &pixels) else {
+        let Some(sgbm) = sgbm_at(&fixtures().join(pair), rows, &pixels) else {
             sgbm_missing = true;
             continue;
         };
@@ -223,13 +245,16 @@ fn the_flies_obstacles_are_built_from_agree_with_the_lidar_truth() {
             100.0 * s1,
             100.0 * s3
         );
-        // The issue asks "not below SGBM": not met within 3 px on the 2015 pairs (flies 91.8 %
-        // and 86.2 %, SGBM 94.1 % and 100 %: the same flies with an ambiguity of 0.3-0.5 as
-        // above) nor within 1 px on kitti2012_train_000000 and kitti2015_train_000001
-        // (docs/perception.md). A guard at the measured gap: at most 15 points below SGBM.
+        // The issue asks "not below SGBM": within 1 px the flies are 1-13 points below SGBM
+        // on the same (row-corrected) images except on kitti2015_train_000001, within 3 px
+        // up to 5.4 points below (docs/perception.md). A guard at the measured gap.
         assert!(
-            f3 + 0.15 >= s3,
+            f3 + 0.08 >= s3,
             "{pair}: flies {f3:.3} against SGBM {s3:.3} within 3 px"
+        );
+        assert!(
+            f1 + 0.18 >= s1,
+            "{pair}: flies {f1:.3} against SGBM {s1:.3} within 1 px"
         );
     }
     if sgbm_missing {
@@ -300,9 +325,9 @@ fn a_car_crossing_into_the_corridor_is_seen_at_its_distance() {
         );
     }
     // Frame 11: the yellow car's front is in the corridor, 13.8 m ahead. Seen by some of the
-    // frame's estimates (5 of 21 measured, 13.9-14.8 m); the frame's last one decides the
-    // frame's verdict and the sequence ends there, so it is not confirmed (two frames are
-    // needed): docs/perception.md.
+    // frame's estimates (8 of 21 measured with the rig's row correction, 13.6-13.9 m; 5 of
+    // 21 without); the sequence ends there, so it is not confirmed (two frames are needed):
+    // docs/perception.md.
     let car: Vec<f64> = estimates
         .iter()
         .filter(|(f, _)| *f == 11)

@@ -42,9 +42,11 @@ use flyd_core::decision::{
 };
 use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::geometry::StereoRig;
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
+use flyd_core::rectification::{RowOffset, residual_row_offset};
 use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorMonitor, SensorVerdict};
 use flyd_core::status::FaultBits;
 use image::RgbImage;
@@ -133,6 +135,9 @@ pub struct Settings {
     pub warmup_generations: u64,
     /// Write what the replay sees and decides to a recording (`flyd replay --record`).
     pub record: Option<crate::record::Recorder>,
+    /// The calibration's row correction of the right image
+    /// (`rectification.right_row_offset_px`).
+    pub right_row_shift: f64,
 }
 
 /// Generations the daemon runs per frame of a video at `fps` that changes every frame (a
@@ -188,6 +193,9 @@ pub struct Replay {
     pub frames: u64,
     /// The feed knew its motion.
     pub moving_feed: bool,
+    /// The right image's rows as measured on the last frame's fittest unique flies, after
+    /// the calibration's correction ([`flyd_core::rectification`]).
+    pub row_offset: Option<RowOffset>,
 }
 
 impl Replay {
@@ -221,7 +229,8 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             }
         })
     };
-    let mut frame = StereoFrame::new(image(w, h)?, image(rw, rh)?, 0);
+    let right = image(rw, rh)?.with_row_shift(settings.right_row_shift);
+    let mut frame = StereoFrame::new(image(w, h)?, right, 0);
     let mut recording = recorder.map(ReplayRecording::new).transpose()?;
     let mut left = RgbImage::new(w, h);
     let per_frame = settings.per_frame.max(1);
@@ -317,6 +326,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         });
     }
     let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
+    let row_offset = row_offset(feed.rig(), settings.params.min_depth, &frame);
     drop(recording);
     Ok(Replay {
         perception,
@@ -326,7 +336,15 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         left,
         frames: index.map_or(0, |i| i + 1),
         moving_feed: feed.motion(0).is_some(),
+        row_offset,
     })
+}
+
+/// The residual row offset of `frame` ([`flyd_core::rectification`]), matching its corners
+/// over the disparities of the search range (nearest depth: `min_depth`).
+fn row_offset(rig: &StereoRig, min_depth: f64, frame: &StereoFrame) -> Option<RowOffset> {
+    let disparity = rig.right.intrinsics().fx * rig.baseline() / min_depth.max(0.1);
+    residual_row_offset(frame, disparity.clamp(1.0, 512.0).ceil() as u32)
 }
 
 /// What a replay hands its recorder: the frames and pairs, the flies, one snapshot and one

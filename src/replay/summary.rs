@@ -155,9 +155,22 @@ pub struct Summary {
     /// On a scenario where an obstacle appears: how fast the warning and the command reacted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reaction: Option<Reaction>,
+    /// The right image's row correction, and what is left of the rows' misalignment.
+    pub row_offset: RowOffsetReport,
     /// The state at the last generation of each frame, when there is more than one frame.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub per_frame: Vec<FrameReport>,
+}
+
+/// The summary's `row_offset`: the calibration's correction of the right image's rows, and
+/// the residual measured on the last frame (`residual_px`, `flies`, `at_range_edge`; absent
+/// when too few flies matched). A residual beyond ~0.2 px is worth adding to
+/// `rectification.right_row_offset_px`.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RowOffsetReport {
+    pub applied_px: f64,
+    #[serde(flatten)]
+    pub measured: Option<flyd_core::rectification::RowOffset>,
 }
 
 impl Summary {
@@ -214,6 +227,10 @@ impl Summary {
                 .filter(|r| !r.sensor.faults.is_empty())
                 .count() as u64,
             reaction,
+            row_offset: RowOffsetReport {
+                applied_px: replay.settings.right_row_shift,
+                measured: replay.row_offset,
+            },
             per_frame,
         }
     }
