@@ -54,6 +54,17 @@ fn prepare(c: &mut Criterion) {
                 .expect("prepare")
         })
     });
+    // A right camera with a row correction (rectification.right_row_offset_px).
+    let mut shifted = PreparedImage::new(640, 480)
+        .expect("image")
+        .with_row_shift(0.37);
+    c.bench_function("prepare/640x480_rgb_row_shift", |b| {
+        b.iter(|| {
+            shifted
+                .prepare(PixelFormat::Rgb8, black_box(&pixels))
+                .expect("prepare")
+        })
+    });
 }
 
 criterion_group!(benches, generation, prepare);

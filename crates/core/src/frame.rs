@@ -133,6 +133,8 @@ pub struct PreparedImage {
     pixels: Option<RetainedPixels>,
     /// Vertical shift applied by every prepare, 1/256 px ([`PreparedImage::with_row_shift`]).
     row_shift_q8: i32,
+    /// One row of the padded buffer (scratch of the row shift; empty without one).
+    shift_scratch: Vec<u8>,
 }
 
 /// What a retained frame was prepared from.
@@ -223,6 +225,7 @@ impl PreparedImage {
             raw: RawStats::default(),
             pixels: None,
             row_shift_q8: 0,
+            shift_scratch: Vec::new(),
         })
     }
 
@@ -234,6 +237,7 @@ impl PreparedImage {
     pub fn with_row_shift(mut self, px: f64) -> Self {
         let px = if px.is_finite() { px } else { 0.0 };
         self.row_shift_q8 = (px.clamp(-MAX_ROW_SHIFT, MAX_ROW_SHIFT) * 256.0).round() as i32;
+        self.shift_scratch = vec![0; self.width * BPP];
         self
     }
 
@@ -437,25 +441,41 @@ impl PreparedImage {
     /// clamped to the image). A non-negative `k` reads rows at or below `y` only, so the rows
     /// are visited top down; a negative one bottom up. No allocation.
     fn shift_rows(&mut self) {
-        let (w, h) = (self.width, self.height);
+        let (w, h, stride) = (self.width, self.height, self.stride);
         let k = self.row_shift_q8.div_euclid(256) as isize;
         let a = self.row_shift_q8.rem_euclid(256) as u16;
         let src = |y: usize, d: isize| (y as isize + d).clamp(0, h as isize - 1) as usize;
-        let blend = |p: u8, q: u8| ((u16::from(p) * (256 - a) + u16::from(q) * a + 128) >> 8) as u8;
+        let row = |y: usize| (y + PAD) * stride + PAD * BPP;
+        let n = w * BPP;
+        let Self {
+            data,
+            luma,
+            shift_scratch,
+            ..
+        } = self;
+        // Sized by `with_row_shift`; the lengths below hold for any image of this size.
+        shift_scratch.resize(n, 0);
+        // Blends two rows into the scratch (straight-line code the compiler vectorises).
+        let blend = |out: &mut [u8], p: &[u8], q: &[u8]| {
+            for ((o, &p), &q) in out.iter_mut().zip(p).zip(q) {
+                *o = ((u16::from(p) * (256 - a) + u16::from(q) * a + 128) >> 8) as u8;
+            }
+        };
         for i in 0..h {
             let y = if k >= 0 { i } else { h - 1 - i };
             let (y0, y1) = (src(y, k), src(y, k + 1));
-            let (o, o0, o1) = (
-                self.offset(0, y as isize),
-                self.offset(0, y0 as isize),
-                self.offset(0, y1 as isize),
+            blend(
+                &mut shift_scratch[..n],
+                &data[row(y0)..row(y0) + n],
+                &data[row(y1)..row(y1) + n],
             );
-            for x in 0..w * BPP {
-                self.data[o + x] = blend(self.data[o0 + x], self.data[o1 + x]);
-            }
-            for x in 0..w {
-                self.luma[y * w + x] = blend(self.luma[y0 * w + x], self.luma[y1 * w + x]);
-            }
+            data[row(y)..row(y) + n].copy_from_slice(&shift_scratch[..n]);
+            blend(
+                &mut shift_scratch[..w],
+                &luma[y0 * w..(y0 + 1) * w],
+                &luma[y1 * w..(y1 + 1) * w],
+            );
+            luma[y * w..(y + 1) * w].copy_from_slice(&shift_scratch[..w]);
         }
     }
 

@@ -564,7 +564,10 @@ fn rig_toml_rectification_gives_the_right_images_row_correction() {
         let e = parse(&format!("[rectification]\nright_row_offset_px = {bad}\n"))
             .expect_err(bad)
             .to_string();
-        assert!(e.contains("rectification.right_row_offset_px"), "{bad}: {e}");
+        assert!(
+            e.contains("rectification.right_row_offset_px"),
+            "{bad}: {e}"
+        );
     }
     let e = parse("[rectification]\nrow = 1\n").expect_err("unknown key");
     assert!(e.to_string().contains("inline.toml"), "{e}");
