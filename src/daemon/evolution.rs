@@ -71,6 +71,8 @@ pub struct EvolutionThread {
     /// Gets each new pair (with the motion its flies were moved with) and the flies every
     /// `record.flies_every` generations.
     pub recorder: Option<crate::record::Recorder>,
+    /// Hands a pair now and then to the worker that measures the right image's rows.
+    pub rows: Option<super::rows::RowsMonitor>,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -120,6 +122,12 @@ impl EvolutionThread {
                 self.log_road(&report.road);
             }
             let finished = self.clock.now();
+            if stats.new_frame
+                && stats.generation >= self.config.warmup_generations
+                && let Some(rows) = self.rows.as_mut()
+            {
+                rows.offer(finished, &self.stereo);
+            }
             if let Some(recorder) = &self.recorder {
                 if stats.new_frame {
                     recorder.pair(

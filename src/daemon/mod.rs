@@ -41,6 +41,7 @@ pub mod mock_vehicle;
 pub mod notify;
 pub mod pairer;
 pub mod ring;
+pub mod rows;
 pub mod shared_motion;
 pub mod snapshot;
 pub mod stats;
@@ -108,6 +109,8 @@ pub enum DaemonError {
     },
     #[error("frame buffers")]
     Frame(#[from] FrameError),
+    #[error("rectification monitor")]
+    Rows(#[from] rows::RowsError),
     #[error("CAN configuration")]
     Can(#[from] CanConfigError),
     #[error("decision configuration")]
@@ -298,6 +301,7 @@ pub fn run(
     let mut threads = Threads {
         captures: Vec::new(),
         evolution: None,
+        rows: None,
         stop: stop.clone(),
     };
     let (left_source, right_source) = cameras;
@@ -326,6 +330,16 @@ pub fn run(
         threads.captures.push((name, handle));
     }
 
+    // The right image's rows, measured now and then (corners up to the nearest depth's
+    // disparity).
+    let max_disparity = rig.right.intrinsics().fx * rig.baseline() / config.engine.min_depth;
+    let (rows_monitor, rows_worker) = rows::RowsMonitor::start(
+        width,
+        height,
+        right_row_offset_px,
+        max_disparity.clamp(1.0, 512.0).ceil() as u32,
+    )?;
+    threads.rows = Some(rows_worker);
     let evolution = EvolutionThread {
         perception,
         left: left_reader,
@@ -341,6 +355,7 @@ pub fn run(
         sensor: SensorMonitor::new(config.sensor),
         motion: config.vehicle.predict_flies.then(|| motion.clone()),
         recorder: recorder.clone(),
+        rows: Some(rows_monitor),
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
@@ -513,6 +528,8 @@ fn start_recording(
 struct Threads {
     captures: Vec<(&'static str, JoinHandle<()>)>,
     evolution: Option<JoinHandle<Result<(), EngineError>>>,
+    /// The rows worker: ends once the evolution thread (its only sender) has.
+    rows: Option<JoinHandle<()>>,
     stop: Shutdown,
 }
 
@@ -532,6 +549,11 @@ impl Threads {
             if handle.join().is_err() {
                 panicked = Some(name);
             }
+        }
+        if let Some(handle) = self.rows.take()
+            && handle.join().is_err()
+        {
+            panicked = Some(rows::THREAD);
         }
         match panicked {
             Some(thread) => Err(DaemonError::Panicked { thread }),

@@ -241,6 +241,19 @@ impl PreparedImage {
         self
     }
 
+    /// Makes this image a copy of `other`'s prepared pixels (colour, gradient, channels),
+    /// without allocating, when both are the same size; returns whether it did. (What a
+    /// worker off the real-time path measures on.)
+    pub fn copy_from(&mut self, other: &PreparedImage) -> bool {
+        if (self.width, self.height) != (other.width, other.height) {
+            return false;
+        }
+        self.data.copy_from_slice(&other.data);
+        self.channels = other.channels;
+        self.raw = other.raw;
+        true
+    }
+
     /// The vertical shift of [`Self::with_row_shift`], pixels.
     pub fn row_shift(&self) -> f64 {
         f64::from(self.row_shift_q8) / 256.0
