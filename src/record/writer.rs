@@ -929,10 +929,12 @@ impl Live {
 mod tests {
     use super::*;
 
-    #[test]
-    fn rotation_by_time_starts_a_new_complete_file() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("t.mcap");
+    /// A writer of 8 x 8 frames into `path` that starts a new part every 30 ms, and its
+    /// recorder.
+    fn rotating_writer(
+        path: PathBuf,
+        config_text: Option<String>,
+    ) -> (super::super::Recorder, Writer) {
         let (recorder, rx, returns) = super::super::channel(super::super::RecorderSizes {
             queue: 16,
             width: 8,
@@ -943,17 +945,38 @@ mod tests {
             fps: 10.0,
         });
         let options = RecordOptions {
-            path: Some(path.clone()),
+            path: Some(path),
             rotate_bytes: None,
             rotate_after: Some(Duration::from_millis(30)),
             compression: true,
             live: None,
-            config_text: Some("[cameras]\n".into()),
+            config_text,
             metadata: BTreeMap::new(),
         };
         let rig = crate::mock::mock_rig(320, 240).expect("rig");
         let counters = recorder.counters().clone();
         let writer = spawn_writer(options, &rig, rx, returns, counters).expect("writer");
+        (recorder, writer)
+    }
+
+    /// Hands a record to the writer with `send`, waits until it is written (a loaded machine
+    /// may starve the writer), then for more than the rotation time: the next record starts
+    /// a new part whatever the scheduling.
+    fn send_then_wait(recorder: &super::super::Recorder, send: impl FnOnce()) {
+        let before = recorder.counters().written();
+        send();
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while recorder.counters().written() == before && std::time::Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+
+    #[test]
+    fn rotation_by_time_starts_a_new_complete_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (recorder, writer) =
+            rotating_writer(dir.path().join("t.mcap"), Some("[cameras]\n".into()));
         let stats = |t: u64| super::super::topics::StatsEvent {
             t_ns: t,
             fps_left: 10.0,
@@ -967,8 +990,7 @@ mod tests {
             record_dropped: 0,
         };
         for t in 0..3 {
-            recorder.stats(stats(t));
-            std::thread::sleep(Duration::from_millis(50));
+            send_then_wait(&recorder, || recorder.stats(stats(t)));
         }
         drop(recorder);
         let report = writer.handle.join().expect("writer ends");
@@ -996,38 +1018,18 @@ mod tests {
     #[test]
     fn a_part_holding_one_cameras_frames_still_carries_both_calibrations() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("c.mcap");
-        let (recorder, rx, returns) = super::super::channel(super::super::RecorderSizes {
-            queue: 16,
-            width: 8,
-            height: 8,
-            flies: 4,
-            images: true,
-            flies_every: 1,
-            fps: 10.0,
-        });
-        let options = RecordOptions {
-            path: Some(path),
-            rotate_bytes: None,
-            rotate_after: Some(Duration::from_millis(30)),
-            compression: true,
-            live: None,
-            config_text: None,
-            metadata: BTreeMap::new(),
-        };
-        let rig = crate::mock::mock_rig(320, 240).expect("rig");
-        let counters = recorder.counters().clone();
-        let writer = spawn_writer(options, &rig, rx, returns, counters).expect("writer");
+        let (recorder, writer) = rotating_writer(dir.path().join("c.mcap"), None);
         let pixels = [0u8; 8 * 8 * 3];
         for t in 0..3 {
             // The left camera only, as when a part ends between a left and a right frame.
-            recorder.frame(
-                Side::Left,
-                Duration::from_millis(t),
-                (8, 8),
-                flyd_core::frame::Retained::Raw(PixelFormat::Rgb8, &pixels),
-            );
-            std::thread::sleep(Duration::from_millis(50));
+            send_then_wait(&recorder, || {
+                recorder.frame(
+                    Side::Left,
+                    Duration::from_millis(t),
+                    (8, 8),
+                    flyd_core::frame::Retained::Raw(PixelFormat::Rgb8, &pixels),
+                )
+            });
         }
         drop(recorder);
         let report = writer.handle.join().expect("writer ends");
