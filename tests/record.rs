@@ -579,6 +579,36 @@ fn generations_on_the_last_pair_after_the_cameras_stop_replay_too() {
 }
 
 #[test]
+fn a_rig_with_a_row_correction_records_and_replays_bit_for_bit() {
+    // The daemon's right frames are read 0.3 rows down (rectification.right_row_offset_px):
+    // the replay must correct the recorded pixels the same way, or the flies part.
+    let rigs = tempfile::tempdir().expect("tempdir");
+    let rig = std::fs::read_to_string(repo("tests/vm/config/mock-rig-320x240.toml")).expect("rig");
+    let rig_file = rigs.path().join("rig.toml");
+    std::fs::write(
+        &rig_file,
+        format!("{rig}\n[rectification]\nright_row_offset_px = 0.3\n"),
+    )
+    .expect("write rig");
+    let r = record_with(
+        |demo| {
+            demo.replace("width = 640", "width = 320")
+                .replace("height = 480", "height = 240")
+                .replace("flies = 5000", "flies = 1000")
+                .replace(
+                    "builtin = \"mock\"",
+                    &format!("file = {:?}", rig_file.display().to_string()),
+                )
+        },
+        None,
+    );
+    let s = replay_ok(&r.mcap, &[]);
+    assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
+    assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");
+    assert_eq!(s["snapshots"], s["snapshots_identical"], "{s}");
+}
+
+#[test]
 fn commands_decided_on_the_newest_snapshot_again_replay_and_record_again() {
     // A generation every 50 ms and on each new frame (33 ms) against a command every 20 ms:
     // many commands find no new snapshot and are decided on the newest one again, at their
