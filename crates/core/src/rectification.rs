@@ -20,6 +20,7 @@
 //! rows); for a rig that is not, it says nothing useful.
 
 use crate::frame::{BPP, PreparedImage, StereoFrame};
+use crate::geometry::StereoRig;
 
 /// Half the window side, pixels (7 x 7 windows, as the fitness's).
 const R: i32 = 3;
@@ -46,6 +47,13 @@ pub struct RowOffset {
     pub corners: usize,
     /// The least cost's edge of the tried range was the best (the residual may be larger).
     pub at_range_edge: bool,
+}
+
+/// The disparity (whole pixels, 1..=512) of the nearest depth `min_depth` searched on `rig`:
+/// how far along its row [`residual_row_offset`] matches a corner.
+pub fn max_disparity(rig: &StereoRig, min_depth: f64) -> u32 {
+    let d = rig.right.intrinsics().fx * rig.baseline() / min_depth.max(0.1);
+    d.clamp(1.0, 512.0).ceil() as u32
 }
 
 /// The residual of `frame`'s rows (see the module docs), matching corners up to
@@ -105,11 +113,13 @@ pub fn residual_row_offset(frame: &StereoFrame, max_disparity: u32) -> Option<Ro
 }
 
 /// The strongest corner of each grid cell (Shi-Tomasi: the structure tensor's smaller
-/// eigenvalue over a 7 x 7 window, on the green channel every second pixel), strongest first.
+/// eigenvalue over a 7 x 7 window, on the green channel (a grey image's only one) every
+/// second pixel), strongest first.
 fn corners(img: &PreparedImage, margin: usize) -> Vec<(usize, usize)> {
     let (w, h) = (img.width() as usize, img.height() as usize);
     let d = img.data();
-    let g = |x: usize, y: usize| f64::from(d[img.offset(x as isize, y as isize) + 1.min(BPP - 1)]);
+    let channel = usize::from(img.channels() == 3);
+    let g = |x: usize, y: usize| f64::from(d[img.offset(x as isize, y as isize) + channel]);
     let mut best: Vec<(f64, usize, usize)> = Vec::new();
     let m = margin + 1;
     for cy in (m..h - m).step_by(CELL) {
@@ -213,6 +223,11 @@ mod tests {
     /// The scene is blurred noise (texture at the windows' scale, corners everywhere), read
     /// bilinearly where the right camera sees it.
     fn pair(rows: f64, shift: f64) -> StereoFrame {
+        pair_as(PixelFormat::Rgb8, rows, shift)
+    }
+
+    /// [`pair`] in `format` (grey: the red channel's values alone).
+    fn pair_as(format: PixelFormat, rows: f64, shift: f64) -> StereoFrame {
         let (w, h) = (240usize, 160usize);
         let (sw, sh) = (w + 40, h + 20);
         let noise: Vec<f64> = (0..sw * sh)
@@ -264,11 +279,15 @@ mod tests {
             }
         }
         let (w, h) = (w as u32, h as u32);
-        let left = PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, &l).expect("left");
+        if format == PixelFormat::Grey8 {
+            l = l.into_iter().step_by(3).collect();
+            r = r.into_iter().step_by(3).collect();
+        }
+        let left = PreparedImage::from_pixels(w, h, format, &l).expect("left");
         let mut right = PreparedImage::new(w, h)
             .expect("right")
             .with_row_shift(shift);
-        right.prepare(PixelFormat::Rgb8, &r).expect("prepare");
+        right.prepare(format, &r).expect("prepare");
         StereoFrame::new(left, right, 1)
     }
 
@@ -282,6 +301,12 @@ mod tests {
             );
             assert!(!m.at_range_edge && m.corners >= MIN_MATCHES, "{m:?}");
         }
+    }
+
+    #[test]
+    fn a_grey_pair_is_measured_as_well() {
+        let m = residual_row_offset(&pair_as(PixelFormat::Grey8, 0.4, 0.0), 32).expect("measured");
+        assert!((m.residual_px - 0.4).abs() <= 0.1, "{m:?}");
     }
 
     #[test]
