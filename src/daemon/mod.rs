@@ -332,12 +332,11 @@ pub fn run(
 
     // The right image's rows, measured now and then (corners up to the nearest depth's
     // disparity).
-    let max_disparity = rig.right.intrinsics().fx * rig.baseline() / config.engine.min_depth;
     let (rows_monitor, rows_worker) = rows::RowsMonitor::start(
         width,
         height,
         right_row_offset_px,
-        max_disparity.clamp(1.0, 512.0).ceil() as u32,
+        flyd_core::rectification::max_disparity(&rig, config.engine.min_depth),
     )?;
     threads.rows = Some(rows_worker);
     let evolution = EvolutionThread {

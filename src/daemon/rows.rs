@@ -6,9 +6,9 @@
 //! copies the newest pair into a spare frame allocated at start (a memcpy, no allocation) and
 //! hands it to the `flyd-rows` worker if that is idle; the worker (SCHED_IDLE: only on a core
 //! nothing else wants) measures (15-19 ms of CPU at 320x240; `took_ms` in its log, which
-//! includes the waits for an idle core), logs, and gives the frame back. The first measure is logged at INFO; a
-//! residual beyond [`WARN_PX`] at WARN, with the value to put in the rig file, once until it
-//! comes back under. Nothing is corrected while running: the correction is the calibration's
+//! includes the waits for an idle core), logs, and gives the frame back. The first measure is
+//! logged at INFO; a residual beyond [`WARN_PX`] at WARN, with the value to put in the rig
+//! file, once until it comes back under. Nothing is corrected while running: the correction is the calibration's
 //! (`rectification.right_row_offset_px`), and changing the images under the flies would
 //! change what a recording replays.
 

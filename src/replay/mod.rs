@@ -42,11 +42,10 @@ use flyd_core::decision::{
 };
 use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
-use flyd_core::geometry::StereoRig;
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
-use flyd_core::rectification::{RowOffset, residual_row_offset};
+use flyd_core::rectification::{RowOffset, max_disparity, residual_row_offset};
 use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorMonitor, SensorVerdict};
 use flyd_core::status::FaultBits;
 use image::RgbImage;
@@ -326,7 +325,8 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         });
     }
     let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
-    let row_offset = row_offset(feed.rig(), settings.params.min_depth, &frame);
+    let row_offset =
+        residual_row_offset(&frame, max_disparity(feed.rig(), settings.params.min_depth));
     drop(recording);
     Ok(Replay {
         perception,
@@ -338,13 +338,6 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         moving_feed: feed.motion(0).is_some(),
         row_offset,
     })
-}
-
-/// The residual row offset of `frame` ([`flyd_core::rectification`]), matching its corners
-/// over the disparities of the search range (nearest depth: `min_depth`).
-fn row_offset(rig: &StereoRig, min_depth: f64, frame: &StereoFrame) -> Option<RowOffset> {
-    let disparity = rig.right.intrinsics().fx * rig.baseline() / min_depth.max(0.1);
-    residual_row_offset(frame, disparity.clamp(1.0, 512.0).ceil() as u32)
 }
 
 /// What a replay hands its recorder: the frames and pairs, the flies, one snapshot and one
