@@ -91,12 +91,6 @@ impl<'a> Kernel<'a> {
     }
 
     /// The same kernel without the region of interest (every fly judged on its match alone).
-    /// Whether a compared fly's SSD (as [`Scratch::ssd`] gives it) counts as a match (see
-    /// [`Matches`]).
-    pub(crate) fn matches(&self, ssd: i32) -> bool {
-        ssd >= 0 && ssd as f32 <= self.match_ssd
-    }
-
     pub(crate) fn without_roi(self) -> Self {
         Self { roi: None, ..self }
     }
@@ -193,6 +187,7 @@ impl<'a> Kernel<'a> {
         let [r0, rz, rx] = self.road;
         let fitness = &mut pop.raw_fitness[from..][..len];
         let cells = &mut pop.cell[from..][..len];
+        let matched = &mut pop.matched[from..][..len];
         let (lo, ro) = (&mut scratch.lo[..len], &mut scratch.ro[..len]);
         let (ts, grads) = (&mut scratch.t[..len], &mut scratch.grads[..len]);
         let ssds = &mut scratch.ssd[..len];
@@ -247,6 +242,7 @@ impl<'a> Kernel<'a> {
                 (0.0, 0.0)
             };
             m.visible += u32::from(compared);
+            matched[i] = compared & (ssd <= self.match_ssd);
             // A match counts only on texture: uniform windows (a black or saturated image)
             // have a zero SSD everywhere and would otherwise "match" at every depth.
             m.matched += u32::from(compared & (ssd <= self.match_ssd) & (g >= MATCH_MIN_GRADIENT));
@@ -276,12 +272,6 @@ pub(crate) struct Scratch {
 }
 
 impl Scratch {
-    /// The SSD of the `i`-th fly of the latest evaluation (from its range's start), -1 for
-    /// one not compared.
-    pub(crate) fn ssd(&self, i: usize) -> i32 {
-        self.ssd.get(i).copied().unwrap_or(-1)
-    }
-
     /// Room for evaluating `flies` flies at once.
     pub(crate) fn new(flies: usize) -> Self {
         let n = flies;

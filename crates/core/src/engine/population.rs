@@ -24,6 +24,9 @@ pub struct Population {
     pub v_right: Vec<f32>,
     /// Sharing cell of the left projection, `u32::MAX` when outside.
     pub(super) cell: Vec<u32>,
+    /// Whether the fly's windows matched at its latest evaluation (the kernel's SSD test,
+    /// texture or not): what [`super::Engine::ambiguity`] needs of the fly itself.
+    pub(super) matched: Vec<bool>,
 }
 
 impl Population {
@@ -40,6 +43,7 @@ impl Population {
             u_right: vec![f32::NAN; n],
             v_right: vec![f32::NAN; n],
             cell: vec![u32::MAX; n],
+            matched: vec![false; n],
         }
     }
 
@@ -63,6 +67,7 @@ impl Population {
         self.u_right[to] = self.u_right[from];
         self.v_right[to] = self.v_right[from];
         self.cell[to] = self.cell[from];
+        self.matched[to] = self.matched[from];
     }
 
     /// Projects flies `r` into both images (NaN where a fly is outside one). Inlined, so the

@@ -22,13 +22,18 @@ use crate::road::RoadPlane;
 /// Disparity offsets (pixels) at which a fly's left pixel is compared again.
 pub const SHIFTS: [f32; 4] = [-4.0, -2.0, 2.0, 4.0];
 
-/// Points evaluated per fly: itself (for its SSD), then its shifts.
-const PER_FLY: usize = SHIFTS.len() + 1;
+/// Points evaluated per fly: its shifts (whether it matches itself is known from its own
+/// evaluation, [`Population::matched`]). All four in one batch: their windows share the
+/// image rows a fly's cache misses bring in (two passes, the farther shifts only for the
+/// flies the nearer ones left unique, evaluated 20 % fewer points in 30 % more time).
+const PER_FLY: usize = SHIFTS.len();
 
 /// The shifted copies of the flies whose ambiguity is asked for, sized once.
 #[derive(Debug, Clone)]
 pub(super) struct Uniqueness {
     batch: Population,
+    /// For each fly's points in the batch, which of the asked flies (`k`) it is.
+    owner: Vec<u32>,
     /// Disparity (pixels) per unit of inverse depth along the left camera's axis: the right
     /// camera's focal length times the baseline.
     pixels_per_inverse_depth: f32,
@@ -39,23 +44,26 @@ impl Uniqueness {
     /// pixels per m^-1.
     pub(super) fn new(flies: usize, pixels_per_inverse_depth: f64) -> Self {
         Self {
-            batch: Population::with_len(flies * PER_FLY),
+            // Room for the points of a line too (Engine::line_ambiguity): five per fly.
+            batch: Population::with_len(flies * (PER_FLY + 1)),
+            owner: vec![0; flies],
             pixels_per_inverse_depth: pixels_per_inverse_depth as f32,
         }
     }
 
     /// Flies at a time.
     pub(super) fn capacity(&self) -> usize {
-        self.batch.len() / PER_FLY
+        self.owner.len()
     }
 }
 
 impl Engine {
     /// For each fly `flies[k]` of the population, `out[k]` = the best fitness of its left pixel
     /// at the [`SHIFTS`] divided by its own fitness (see the module docs): small for a unique
-    /// match, near or above 1 for an ambiguous one, infinite for a fly with no fitness. `frame`
-    /// must be the frame of the latest [`Engine::step`]. At most [`Engine::ambiguity_capacity`]
-    /// flies are looked at (the rest of `out` is left as it is); returns how many were.
+    /// match, near or above 1 for an ambiguous one, infinite for a fly with no fitness or
+    /// whose windows do not match (not evaluated). `frame` must be the frame of the latest
+    /// [`Engine::step`]. At most [`Engine::ambiguity_capacity`] flies are looked at (the rest
+    /// of `out` is left as it is); returns how many were.
     pub fn ambiguity(
         &mut self,
         frame: &StereoFrame,
@@ -64,16 +72,20 @@ impl Engine {
     ) -> Result<usize, EngineError> {
         self.check_frame(frame)?;
         let n = flies.len().min(out.len()).min(self.uniqueness.capacity());
+        let last = self.pop.len().saturating_sub(1);
         let (pop, u, sampler) = (&self.pop, &mut self.uniqueness, &self.setup.sampler);
         let k = u.pixels_per_inverse_depth;
         let mut filled = 0;
-        for &i in &flies[..n] {
-            let i = (i as usize).min(pop.len().saturating_sub(1));
+        for (j, (o, &i)) in out[..n].iter_mut().zip(&flies[..n]).enumerate() {
+            let i = (i as usize).min(last);
+            // A fly with no fitness, or whose windows do not match, is no evidence.
+            if !(pop.raw_fitness[i] > 0.0 && pop.matched[i]) {
+                *o = f32::INFINITY;
+                continue;
+            }
             let p = [pop.x[i], pop.y[i], pop.z[i]];
             let depth = sampler.depth_of(&p);
-            let base = filled * PER_FLY;
-            (u.batch.x[base], u.batch.y[base], u.batch.z[base]) = (p[0], p[1], p[2]);
-            for (j, s) in SHIFTS.iter().enumerate() {
+            for (m, s) in SHIFTS.iter().enumerate() {
                 // Disparity + s along the left pixel's ray: 1/depth + s/k.
                 let inv = 1.0 / depth + s / k;
                 let scale = if depth > 0.0 && inv > 0.0 {
@@ -82,9 +94,10 @@ impl Engine {
                     f32::NAN
                 };
                 let q = sampler.along_ray(&p, scale);
-                let at = base + 1 + j;
+                let at = filled * PER_FLY + m;
                 (u.batch.x[at], u.batch.y[at], u.batch.z[at]) = (q[0], q[1], q[2]);
             }
+            u.owner[filled] = j as u32;
             filled += 1;
         }
         let kernel = Kernel::new(frame, &self.setup.params, &RoadPlane::FLAT).without_roi();
@@ -97,16 +110,11 @@ impl Engine {
             &self.sharing,
             &mut self.scratch,
         );
-        for (k, &i) in flies[..n].iter().enumerate() {
-            let own = self.pop.raw_fitness[(i as usize).min(self.pop.len().saturating_sub(1))];
-            let matched = kernel.matches(self.scratch.ssd(k * PER_FLY));
-            let shifted = &u.batch.raw_fitness[k * PER_FLY + 1..(k + 1) * PER_FLY];
+        for (f, &j) in u.owner[..filled].iter().enumerate() {
+            let own = self.pop.raw_fitness[(flies[j as usize] as usize).min(last)];
+            let shifted = &u.batch.raw_fitness[f * PER_FLY..(f + 1) * PER_FLY];
             let best = shifted.iter().copied().fold(0.0f32, f32::max);
-            out[k] = if own > 0.0 && matched {
-                best / own
-            } else {
-                f32::INFINITY
-            };
+            out[j as usize] = best / own;
         }
         Ok(n)
     }

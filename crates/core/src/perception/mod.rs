@@ -115,7 +115,12 @@ impl Perception {
         Ok(Self {
             engine,
             road: RoadEstimator::new(config.road, prior),
-            finder: ObstacleFinder::new(config.obstacle, flies, fb),
+            finder: ObstacleFinder::new(
+                config.obstacle,
+                flies,
+                fb,
+                (rig.left.width(), rig.left.height()),
+            ),
             tracker: Tracker::new(config.track),
             report: PerceptionReport {
                 stats: GenerationStats::default(),

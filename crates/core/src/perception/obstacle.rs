@@ -302,12 +302,14 @@ pub struct ObstacleFinder {
     pixels_per_inverse_depth: f64,
     sample: Vec<u32>,
     ambiguity: Vec<f32>,
-    /// Per fly of the population: the position (bits) its ambiguity was measured at on frame
-    /// `memo_frame`, and that ambiguity. A fly that survived selection unmoved on the same
-    /// frame has the same ambiguity: it is not measured again (about half the sample in a
-    /// generation on a static scene).
-    memo: Vec<([u32; 3], f32)>,
+    /// Per fly of the population: the position (bits) its ambiguity was measured at, on the
+    /// frame of epoch `epoch`, and that ambiguity. A fly that survived selection unmoved on
+    /// the same frame has the same ambiguity: it is not measured again (23 of the 151
+    /// flies of a sample on hw-mock's `pedestrian-4m`, `flyd bench`). A new frame starts a
+    /// new epoch (no pass over the memo).
+    memo: Vec<Memo>,
     memo_frame: u64,
+    epoch: u32,
     /// The sampled flies not in the memo, where they are in the sample, their ambiguities.
     todo: Vec<u32>,
     todo_at: Vec<u32>,
@@ -315,7 +317,7 @@ pub struct ObstacleFinder {
     /// (depth, left-image cell, index) of the unique flies.
     unique: Vec<Unique>,
     scratch: Vec<f32>,
-    cells: Vec<u32>,
+    cells: CellSet,
     counts: CorridorCounts,
     /// The flies of the cluster being looked at.
     members: Vec<Unique>,
@@ -325,6 +327,23 @@ pub struct ObstacleFinder {
     /// Verdicts on this frame's clusters: (frame, nearest depth, farthest depth, genuine).
     verdicts: [(u64, f32, f32, bool); MAX_VERIFIED * 2],
     verdict_next: usize,
+}
+
+/// An ambiguity measured: at which position (bits), on which frame (epoch).
+#[derive(Debug, Clone, Copy)]
+struct Memo {
+    at: [u32; 3],
+    epoch: u32,
+    ambiguity: f32,
+}
+
+impl Memo {
+    /// No position: `u32::MAX` bits are a NaN, which no fly in the corridor has.
+    const EMPTY: Self = Self {
+        at: [u32::MAX; 3],
+        epoch: 0,
+        ambiguity: f32::NAN,
+    };
 }
 
 /// A cluster whose flies' middle 80 % spans fewer image columns than this is one vertical
@@ -338,22 +357,29 @@ const SAMPLE_PER_CANDIDATE: usize = 4;
 pub const MAX_VERIFIED: usize = 3;
 
 impl ObstacleFinder {
-    /// Buffers for `flies` flies, for a rig of `pixels_per_inverse_depth` = f B.
-    pub fn new(config: ObstacleConfig, flies: usize, pixels_per_inverse_depth: f64) -> Self {
+    /// Buffers for `flies` flies, for a rig of `pixels_per_inverse_depth` = f B whose left
+    /// images are `image` (width, height) pixels.
+    pub fn new(
+        config: ObstacleConfig,
+        flies: usize,
+        pixels_per_inverse_depth: f64,
+        image: (u32, u32),
+    ) -> Self {
         let k = config.candidates;
         Self {
             config,
             pixels_per_inverse_depth,
             sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
-            memo: vec![([u32::MAX; 3], f32::NAN); flies],
+            memo: vec![Memo::EMPTY; flies],
             memo_frame: u64::MAX,
+            epoch: 0,
             todo: Vec::with_capacity(k),
             todo_at: Vec::with_capacity(k),
             todo_out: vec![0.0; k],
             unique: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             scratch: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
-            cells: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
+            cells: CellSet::new(image, config.cell_px),
             counts: CorridorCounts::default(),
             members: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             verify: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
@@ -397,8 +423,13 @@ impl ObstacleFinder {
         let len = pop.len();
         if self.memo_frame != frame.id || self.memo.len() < len {
             self.memo_frame = frame.id;
-            self.memo.clear();
-            self.memo.resize(len, ([u32::MAX; 3], f32::NAN));
+            self.epoch = self.epoch.wrapping_add(1);
+            if self.epoch == 0 || self.memo.len() < len {
+                // Every 2^32 frames (and if the population grew): a memo of no epoch.
+                self.epoch = 1;
+                self.memo.clear();
+                self.memo.resize(len, Memo::EMPTY);
+            }
         }
         let stride = stride_for(len);
         let wanted = c.candidates.min(engine.ambiguity_capacity());
@@ -417,9 +448,9 @@ impl ObstacleFinder {
                 && z > 0.0
                 && z <= far;
             if inside {
-                let (at, a) = self.memo[i];
-                if at == [x.to_bits(), y.to_bits(), z.to_bits()] {
-                    self.ambiguity[self.sample.len()] = a;
+                let m = self.memo[i];
+                if m.epoch == self.epoch && m.at == [x.to_bits(), y.to_bits(), z.to_bits()] {
+                    self.ambiguity[self.sample.len()] = m.ambiguity;
                 } else {
                     self.todo.push(i as u32);
                     self.todo_at.push(self.sample.len() as u32);
@@ -427,7 +458,11 @@ impl ObstacleFinder {
                 self.sample.push(i as u32);
             }
             scanned += 1;
-            i = (i + stride) % len;
+            // (i + stride) % len, without a division: stride < len.
+            i += stride;
+            if i >= len {
+                i -= len;
+            }
         }
         let k = self.sample.len();
         // Corridor flies in the population, estimated from the scanned share.
@@ -462,8 +497,10 @@ impl ObstacleFinder {
             sampled: measured,
             unique: self.unique.len(),
         };
+        // By depth, then index: one integer per fly (a sample's depths are positive, where
+        // the bits of an f32 sort as its value).
         self.unique
-            .sort_unstable_by(|a, b| a.z.total_cmp(&b.z).then(a.index.cmp(&b.index)));
+            .sort_unstable_by_key(|u| (u64::from(u.z.to_bits()) << 32) | u64::from(u.index));
         let mut start = 0;
         let mut found = None;
         for _ in 0..MAX_VERIFIED {
@@ -490,8 +527,8 @@ impl ObstacleFinder {
         let quantile = |scratch: &mut Vec<f32>, f: &dyn Fn(u32) -> f32, q: usize| {
             scratch.clear();
             scratch.extend(cluster.iter().map(|u| f(u.index)));
-            scratch.sort_unstable_by(f32::total_cmp);
-            f64::from(scratch[scratch.len() * q / 4])
+            let at = scratch.len() * q / 4;
+            f64::from(*scratch.select_nth_unstable_by(at, f32::total_cmp).1)
         };
         let height = |i: u32| {
             let i = i as usize;
@@ -532,10 +569,11 @@ impl ObstacleFinder {
         {
             self.ambiguity[j as usize] = a;
             let i = i as usize;
-            self.memo[i] = (
-                [pop.x[i].to_bits(), pop.y[i].to_bits(), pop.z[i].to_bits()],
-                a,
-            );
+            self.memo[i] = Memo {
+                at: [pop.x[i].to_bits(), pop.y[i].to_bits(), pop.z[i].to_bits()],
+                epoch: self.epoch,
+                ambiguity: a,
+            };
         }
         // The sample is at most the engine's capacity: every fly was measured.
         Ok(if measured == n { self.sample.len() } else { 0 })
@@ -586,6 +624,54 @@ impl ObstacleFinder {
     }
 }
 
+/// The distinct cells (row << 16 | column) of a cluster, counted in a bit per cell of the
+/// image (no sort).
+#[derive(Debug, Clone)]
+struct CellSet {
+    bits: Vec<u64>,
+    columns: u32,
+    rows: u32,
+}
+
+impl CellSet {
+    /// For images of `(width, height)` pixels in `cell_px` squares.
+    fn new((width, height): (u32, u32), cell_px: u32) -> Self {
+        let cell_px = cell_px.max(1);
+        // One more than the image holds: a projection is within [-0.5, size - 0.5).
+        let (columns, rows) = (width / cell_px + 1, height / cell_px + 1);
+        let n = (columns as usize * rows as usize).div_ceil(64);
+        Self {
+            bits: vec![0; n],
+            columns,
+            rows,
+        }
+    }
+
+    /// How many distinct cells `cells` holds, and whether they span more than one row
+    /// (cells past the image count as its last row or column).
+    fn count(&mut self, cells: impl Iterator<Item = u32> + Clone) -> (usize, bool) {
+        let at = |cell: u32| {
+            let (row, column) = (
+                (cell >> 16).min(self.rows - 1),
+                (cell & 0xFFFF).min(self.columns - 1),
+            );
+            (row, (row * self.columns + column) as usize)
+        };
+        let (mut distinct, mut low, mut high) = (0, u32::MAX, 0);
+        for cell in cells.clone() {
+            let (row, i) = at(cell);
+            let (word, bit) = (i / 64, 1u64 << (i % 64));
+            distinct += usize::from(self.bits[word] & bit == 0);
+            self.bits[word] |= bit;
+            (low, high) = (low.min(row), high.max(row));
+        }
+        for cell in cells {
+            self.bits[at(cell).1 / 64] = 0;
+        }
+        (distinct, distinct > 0 && low != high)
+    }
+}
+
 /// A step through `0..len` that visits every index once before repeating (coprime to it) and
 /// jumps far, so that consecutive flies of the population (offspring of the same parents) are
 /// not taken together.
@@ -610,13 +696,19 @@ fn mad(v: &mut [f32]) -> f32 {
     if v.is_empty() {
         return 0.0;
     }
-    v.sort_unstable_by(f32::total_cmp);
-    let median = v[v.len() / 2];
+    let mid = v.len() / 2;
+    let median = *v.select_nth_unstable_by(mid, f32::total_cmp).1;
     for x in v.iter_mut() {
         *x = (*x - median).abs();
     }
-    v.sort_unstable_by(f32::total_cmp);
-    v[v.len() / 2]
+    *v.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// `x`'s bits as an integer that sorts as [`f32::total_cmp`] orders (negative values with
+/// their bits flipped, positive ones with the sign bit set).
+fn ordered(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b >> 31 == 1 { !b } else { b | (1 << 31) }
 }
 
 /// A unique fly: its depth, its left-image cell (row << 16 | column), its left-image column,
@@ -639,7 +731,7 @@ fn nearest_cluster(
     unique: &[Unique],
     c: &ObstacleConfig,
     pixels_per_inverse_depth: f64,
-    cells: &mut Vec<u32>,
+    cells: &mut CellSet,
     members: &mut Vec<Unique>,
 ) -> Option<(usize, usize)> {
     let mut to = 0;
@@ -663,7 +755,7 @@ fn nearest_cluster(
         // Laterally: the most flies within `cluster_width` of one another.
         members.clear();
         members.extend_from_slice(&unique[from..to]);
-        members.sort_unstable_by(|a, b| a.x.total_cmp(&b.x).then(a.index.cmp(&b.index)));
+        members.sort_unstable_by_key(|u| (u64::from(ordered(u.x)) << 32) | u64::from(u.index));
         let (mut best, mut lo) = ((0, 0), 0);
         for hi in 0..members.len() {
             while members[hi].x - members[lo].x > width {
@@ -678,14 +770,7 @@ fn nearest_cluster(
         }
         members.truncate(best.1);
         members.drain(..best.0);
-        cells.clear();
-        cells.extend(members.iter().map(|u| u.cell));
-        cells.sort_unstable();
-        cells.dedup();
-        let distinct = cells.len();
-        // Cells are row << 16 | column: sorted, the first and last rows differ unless all
-        // lie in one row.
-        let rows = cells.first().map(|c| c >> 16) != cells.last().map(|c| c >> 16);
+        let (distinct, rows) = cells.count(members.iter().map(|u| u.cell));
         // Across: the cluster's width, 4 median absolute deviations of its flies' columns
         // (the width of a uniform spread; robust to a few strays), is MIN_WIDTH_PX or more,
         // and so is that of their lateral positions in metres, `min_width`.
@@ -728,10 +813,57 @@ mod tests {
     /// The cluster's flies' indices.
     fn cluster(u: &[Unique], c: &ObstacleConfig) -> Option<Vec<u32>> {
         let mut members = Vec::new();
-        nearest_cluster(u, c, 400.0, &mut Vec::new(), &mut members)?;
+        let mut cells = CellSet::new((640, 480), c.cell_px);
+        nearest_cluster(u, c, 400.0, &mut cells, &mut members)?;
         let mut ids: Vec<u32> = members.iter().map(|m| m.index).collect();
         ids.sort_unstable();
         Some(ids)
+    }
+
+    #[test]
+    fn ordered_bits_sort_as_total_cmp() {
+        let v = [
+            f32::NEG_INFINITY,
+            -3.5e7,
+            -1.0,
+            -1e-40,
+            -0.0,
+            0.0,
+            1e-40,
+            0.25,
+            1.0,
+            7.0e5,
+            f32::INFINITY,
+        ];
+        for a in v {
+            for b in v {
+                assert_eq!(ordered(a).cmp(&ordered(b)), a.total_cmp(&b), "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn cells_are_counted_once_and_the_set_is_empty_again_after() {
+        let mut set = CellSet::new((640, 480), 8);
+        let cell = |row: u32, column: u32| (row << 16) | column;
+        let one_row = [cell(3, 1), cell(3, 2), cell(3, 1), cell(3, 79)];
+        assert_eq!(set.count(one_row.into_iter()), (3, false));
+        let two_rows = [cell(3, 1), cell(59, 1), cell(3, 1)];
+        assert_eq!(set.count(two_rows.into_iter()), (2, true));
+        // Nothing left over from the calls before.
+        assert_eq!(set.count([cell(3, 2)].into_iter()), (1, false));
+        assert_eq!(set.count([].into_iter()), (0, false));
+        // Past the image: its last row and column.
+        assert_eq!(set.count([cell(500, 900), cell(60, 80)].into_iter()), (1, false));
+    }
+
+    #[test]
+    fn the_median_absolute_deviation_is_that_of_the_sorted_values() {
+        let mut v = [5.0, -1.0, 2.0, 9.0, 2.5, 0.0, 4.0];
+        // Median 2.5; deviations 2.5 3.5 0.5 6.5 0 2.5 1.5: median 2.5.
+        assert_eq!(mad(&mut v), 2.5);
+        assert_eq!(mad(&mut []), 0.0);
+        assert_eq!(mad(&mut [3.0]), 0.0);
     }
 
     #[test]
@@ -821,7 +953,11 @@ mod tests {
         for _ in 0..len {
             assert!(!seen[i], "{i} twice");
             seen[i] = true;
-            i = (i + stride) % len;
+            // (i + stride) % len, without a division: stride < len.
+            i += stride;
+            if i >= len {
+                i -= len;
+            }
         }
     }
 
