@@ -300,7 +300,9 @@ pub struct ObstacleFinder {
     config: ObstacleConfig,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
-    sample: Vec<u32>,
+    /// The sampled flies (what the stage needs of each, read once from the population) and
+    /// their ambiguities.
+    sample: Vec<Unique>,
     ambiguity: Vec<f32>,
     /// Per fly of the population: the position (bits) its ambiguity was measured at, on the
     /// frame of epoch `epoch`, and that ambiguity. A fly that survived selection unmoved on
@@ -310,9 +312,11 @@ pub struct ObstacleFinder {
     memo: Vec<Memo>,
     memo_frame: u64,
     epoch: u32,
-    /// The sampled flies not in the memo, where they are in the sample, their ambiguities.
+    /// The sampled flies not in the memo, where they are in the sample, their positions
+    /// (bits), their ambiguities.
     todo: Vec<u32>,
     todo_at: Vec<u32>,
+    todo_at_position: Vec<[u32; 3]>,
     todo_out: Vec<f32>,
     /// (depth, left-image cell, index) of the unique flies.
     unique: Vec<Unique>,
@@ -376,6 +380,7 @@ impl ObstacleFinder {
             epoch: 0,
             todo: Vec::with_capacity(k),
             todo_at: Vec::with_capacity(k),
+            todo_at_position: Vec::with_capacity(k),
             todo_out: vec![0.0; k],
             unique: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             scratch: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
@@ -437,6 +442,8 @@ impl ObstacleFinder {
         self.sample.clear();
         self.todo.clear();
         self.todo_at.clear();
+        self.todo_at_position.clear();
+        let cell_px = c.cell_px.max(1) as f32;
         let mut i = 0usize;
         let mut scanned = 0;
         while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
@@ -449,13 +456,25 @@ impl ObstacleFinder {
                 && z <= far;
             if inside {
                 let m = self.memo[i];
-                if m.epoch == self.epoch && m.at == [x.to_bits(), y.to_bits(), z.to_bits()] {
+                let at = [x.to_bits(), y.to_bits(), z.to_bits()];
+                if m.epoch == self.epoch && m.at == at {
                     self.ambiguity[self.sample.len()] = m.ambiguity;
                 } else {
                     self.todo.push(i as u32);
                     self.todo_at.push(self.sample.len() as u32);
+                    self.todo_at_position.push(at);
                 }
-                self.sample.push(i as u32);
+                // Inside the image (the fly has a fitness): u, v >= -0.5.
+                let (u, v) = (pop.u_left[i], pop.v_left[i]);
+                let (cu, cv) = (((u + 0.5) / cell_px) as u32, ((v + 0.5) / cell_px) as u32);
+                self.sample.push(Unique {
+                    z,
+                    cell: (cv << 16) | (cu & 0xFFFF),
+                    u,
+                    x,
+                    h,
+                    index: i as u32,
+                });
             }
             scanned += 1;
             // (i + stride) % len, without a division: stride < len.
@@ -468,29 +487,13 @@ impl ObstacleFinder {
         // Corridor flies in the population, estimated from the scanned share.
         let n = (k * len).checked_div(scanned).unwrap_or(0);
         let measured = self.measure(engine, frame)?;
-        let pop = engine.population();
-        let cell_px = c.cell_px.max(1) as f32;
-        let cell_of = |i: usize| {
-            // Inside the image (the fly has a fitness): u, v >= -0.5.
-            let (cu, cv) = (
-                ((pop.u_left[i] + 0.5) / cell_px) as u32,
-                ((pop.v_left[i] + 0.5) / cell_px) as u32,
-            );
-            (cv << 16) | (cu & 0xFFFF)
-        };
         self.unique.clear();
         self.unique.extend(
             self.sample[..measured]
                 .iter()
                 .zip(&self.ambiguity[..measured])
                 .filter(|&(_, &a)| f64::from(a) <= c.max_ambiguity)
-                .map(|(&i, _)| Unique {
-                    z: pop.z[i as usize],
-                    cell: cell_of(i as usize),
-                    u: pop.u_left[i as usize],
-                    x: pop.x[i as usize],
-                    index: i,
-                }),
+                .map(|(u, _)| *u),
         );
         self.counts = CorridorCounts {
             candidates: n,
@@ -522,25 +525,19 @@ impl ObstacleFinder {
         let Some(cells) = found else {
             return Ok(None);
         };
-        let pop = engine.population();
         let cluster = &self.members;
-        let quantile = |scratch: &mut Vec<f32>, f: &dyn Fn(u32) -> f32, q: usize| {
+        let quantile = |scratch: &mut Vec<f32>, f: fn(&Unique) -> f32, q: usize| {
             scratch.clear();
-            scratch.extend(cluster.iter().map(|u| f(u.index)));
+            scratch.extend(cluster.iter().map(f));
             let at = scratch.len() * q / 4;
             f64::from(*scratch.select_nth_unstable_by(at, f32::total_cmp).1)
         };
-        let height = |i: u32| {
-            let i = i as usize;
-            pop.y[i] - (r0 + rz * pop.z[i] + rx * pop.x[i])
-        };
         // The near face (the first quartile of depth): what braking must stop before.
-        let distance = quantile(&mut self.scratch, &|i| pop.z[i as usize], 1);
-        let lateral = quantile(&mut self.scratch, &|i| pop.x[i as usize], 2);
-        let (bottom, top) = cluster.iter().fold((f32::MAX, f32::MIN), |(b, t), u| {
-            let h = height(u.index);
-            (b.min(h), t.max(h))
-        });
+        let distance = quantile(&mut self.scratch, |u| u.z, 1);
+        let lateral = quantile(&mut self.scratch, |u| u.x, 2);
+        let (bottom, top) = cluster
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(b, t), u| (b.min(u.h), t.max(u.h)));
         let flies = cluster.len();
         Ok(Some(Obstacle {
             distance,
@@ -560,17 +557,16 @@ impl ObstacleFinder {
     fn measure(&mut self, engine: &mut Engine, frame: &StereoFrame) -> Result<usize, EngineError> {
         let n = self.todo.len();
         let measured = engine.ambiguity(frame, &self.todo, &mut self.todo_out[..n])?;
-        let pop = engine.population();
-        for ((&i, &j), &a) in self
+        for (((&i, &j), &at), &a) in self
             .todo
             .iter()
             .zip(&self.todo_at)
+            .zip(&self.todo_at_position)
             .zip(&self.todo_out[..measured])
         {
             self.ambiguity[j as usize] = a;
-            let i = i as usize;
-            self.memo[i] = Memo {
-                at: [pop.x[i].to_bits(), pop.y[i].to_bits(), pop.z[i].to_bits()],
+            self.memo[i as usize] = Memo {
+                at,
                 epoch: self.epoch,
                 ambiguity: a,
             };
@@ -711,14 +707,15 @@ fn ordered(x: f32) -> u32 {
     if b >> 31 == 1 { !b } else { b | (1 << 31) }
 }
 
-/// A unique fly: its depth, its left-image cell (row << 16 | column), its left-image column,
-/// its lateral position and its index.
+/// A sampled fly: its depth, its left-image cell (row << 16 | column), its left-image column,
+/// its lateral position, its height above the road and its index.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Unique {
     z: f32,
     cell: u32,
     u: f32,
     x: f32,
+    h: f32,
     index: u32,
 }
 
@@ -805,6 +802,7 @@ mod tests {
                 cell: (i as u32) << 16 | i as u32,
                 u: 8.0 * i as f32,
                 x: 0.1 * i as f32,
+                h: 1.0,
                 index: i as u32,
             })
             .collect()
