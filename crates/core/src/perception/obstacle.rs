@@ -852,7 +852,10 @@ mod tests {
         assert_eq!(set.count([cell(3, 2)].into_iter()), (1, false));
         assert_eq!(set.count([].into_iter()), (0, false));
         // Past the image: its last row and column.
-        assert_eq!(set.count([cell(500, 900), cell(60, 80)].into_iter()), (1, false));
+        assert_eq!(
+            set.count([cell(500, 900), cell(60, 80)].into_iter()),
+            (1, false)
+        );
     }
 
     #[test]
