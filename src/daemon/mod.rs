@@ -261,15 +261,8 @@ pub fn run(
     )?;
     // A recorder keeps the frames as captured: every image that goes round the rings (they
     // are swapped with the engine's) then keeps its packed pixels.
-    let image = || {
-        PreparedImage::new(width, height).map(|i| {
-            if recorder.is_some() {
-                i.retain_pixels()
-            } else {
-                i
-            }
-        })
-    };
+    let image =
+        || PreparedImage::new(width, height).map(|i| i.retain_pixels_if(recorder.is_some()));
     // The right camera's images carry the calibration's row correction (they stay on their
     // side: the evolution thread swaps left with left, right with right).
     let right_image = || image().map(|i| i.with_row_shift(right_row_offset_px));

@@ -219,15 +219,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
     // Taken out: the recording ends with this run (its writer waits for every handle).
     let recorder = settings.record.take();
-    let image = |w, h| {
-        PreparedImage::new(w, h).map(|i| {
-            if recorder.is_some() {
-                i.retain_pixels()
-            } else {
-                i
-            }
-        })
-    };
+    let image = |w, h| PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
     let right = image(rw, rh)?.with_row_shift(settings.right_row_shift);
     let mut frame = StereoFrame::new(image(w, h)?, right, 0);
     let mut recording = recorder.map(ReplayRecording::new).transpose()?;

@@ -236,15 +236,7 @@ fn replay_perception(
     let (w, h) = (config.cameras.width, config.cameras.height);
     let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
-    let image = || {
-        PreparedImage::new(w, h).map(|i| {
-            if recorder.is_some() {
-                i.retain_pixels()
-            } else {
-                i
-            }
-        })
-    };
+    let image = || PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
     let right = image()?.with_row_shift(right_row_offset_px);
     let mut stereo = StereoFrame::new(image()?, right, 0);
     let mut mjpeg = None;

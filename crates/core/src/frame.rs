@@ -272,6 +272,11 @@ impl PreparedImage {
         self
     }
 
+    /// [`PreparedImage::retain_pixels`] when `retain` (a recording runs), else `self`.
+    pub fn retain_pixels_if(self, retain: bool) -> Self {
+        if retain { self.retain_pixels() } else { self }
+    }
+
     /// What the last prepare was made from, when retained ([`PreparedImage::retain_pixels`]):
     /// its packed pixels, or the JPEG they were decoded from ([`Self::retain_encoded`]).
     pub fn pixels(&self) -> Option<Retained<'_>> {

@@ -499,6 +499,17 @@ fn mount_pose(
     mount: &MountToml,
     default: Point3<f64>,
 ) -> Result<(Point3<f64>, Matrix3<f64>), CalibError> {
+    let (centre, [pitch, yaw, roll]) = mount_position_angles(file, mount, default)?;
+    Ok((centre, rotation_from_angles(pitch, yaw, roll)))
+}
+
+/// A `[mount]`'s position (`default` if none) and its pitch, yaw and roll in degrees, checked
+/// finite.
+fn mount_position_angles(
+    file: &Path,
+    mount: &MountToml,
+    default: Point3<f64>,
+) -> Result<(Point3<f64>, [f64; 3]), CalibError> {
     let centre = match mount.position {
         Some(p) if p.iter().any(|v| !v.is_finite()) => {
             return Err(field_error(
@@ -511,7 +522,7 @@ fn mount_pose(
         None => default,
     };
     let mount_key = |name: &str| format!("mount.{name}");
-    let [pitch, yaw, roll] = finite_angles(
+    let angles = finite_angles(
         file,
         &mount_key,
         [
@@ -520,7 +531,7 @@ fn mount_pose(
             ("roll_deg", mount.roll_deg),
         ],
     )?;
-    Ok((centre, rotation_from_angles(pitch, yaw, roll)))
+    Ok((centre, angles))
 }
 
 fn imported_rig(
@@ -530,27 +541,8 @@ fn imported_rig(
     depth_range: Option<(f64, f64)>,
 ) -> Result<StereoRig, CalibError> {
     let defaults = OpenCvImport::default();
-    let left_position = match mount.position {
-        Some(p) if p.iter().any(|v| !v.is_finite()) => {
-            return Err(field_error(
-                file,
-                "mount.position",
-                format!("must be finite numbers of metres (got {p:?})"),
-            ));
-        }
-        Some(p) => Point3::from(p),
-        None => defaults.left_position,
-    };
-    let mount_key = |name: &str| format!("mount.{name}");
-    let [pitch_deg, yaw_deg, roll_deg] = finite_angles(
-        file,
-        &mount_key,
-        [
-            ("pitch_deg", mount.pitch_deg),
-            ("yaw_deg", mount.yaw_deg),
-            ("roll_deg", mount.roll_deg),
-        ],
-    )?;
+    let (left_position, [pitch_deg, yaw_deg, roll_deg]) =
+        mount_position_angles(file, &mount, defaults.left_position)?;
     let image_size = paired(
         file,
         (import.width, "opencv.width"),
