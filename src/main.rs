@@ -97,7 +97,9 @@ struct ReplayArgs {
     /// With --sequence: frames per second of the recording.
     #[arg(long, default_value_t = 10.0)]
     fps: f64,
-    /// Generations to run (default: 50 on a stereo pair, every frame otherwise).
+    /// Generations to run (default on a stereo pair: the warm-up, then long enough for the
+    /// start-up's safe command to be released and an obstacle to be confirmed, at least 50;
+    /// every frame otherwise).
     #[arg(long)]
     generations: Option<u64>,
     /// Population size (default: the configuration's).
@@ -207,6 +209,28 @@ fn main() -> ExitCode {
     }
 }
 
+/// The frame rate a still pair is replayed at (a camera filming it).
+const PAIR_FPS: f64 = 30.0;
+
+/// Generations a still pair needs for its replay to end on a settled decision: the warm-up
+/// (untrusted: the safe command), the hold that releases the safe command once the
+/// perception is trusted (the longer of the two holds with a STOP safe command), the frames
+/// that confirm an obstacle, and two frames more; at least 50. At the defaults (warm-up 30,
+/// SLOW held 500 ms, confirmed on 2 frames, 3 generations a 30 fps frame): 87. With 50, the
+/// replay of a clear road ended on the start-up's SLOW (FAULT_FALLBACK) before the hold ran
+/// out.
+fn settled_pair_generations(config: &DaemonConfig, per_frame: u64, fps: f64) -> u64 {
+    let d = &config.decision;
+    let hold = match d.safe_command {
+        flyd_core::decision::Command::Stop => d.slow_hold.max(d.stop_hold),
+        _ => d.slow_hold,
+    };
+    let hold_frames = (hold.as_secs_f64() * fps).ceil() as u64;
+    let confirm_frames = u64::from(config.perception.track.trigger_frames) + 2;
+    let needed = config.evolution.warmup_generations + per_frame * (hold_frames + confirm_frames);
+    needed.max(50)
+}
+
 fn replay_command(args: ReplayArgs) -> Result<()> {
     if let Some(path) = &args.mcap {
         return replay_recording(path, &args);
@@ -269,12 +293,14 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         let (feed, cal) = PairFeed::load(left, right, calib)?;
         cal.apply_to(&mut params);
         right_row_shift = cal.right_row_offset_px;
-        let generations = args.generations.unwrap_or(50);
         // A still camera filming the pair at 30 fps, 3 generations a frame (no change, so
         // no burst): what the daemon sees standing in front of that scene.
         let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
+        let generations = args
+            .generations
+            .unwrap_or_else(|| settled_pair_generations(&config, per_frame, PAIR_FPS));
         let feed = feed.repeated(generations.div_ceil(per_frame));
-        (Box::new(feed), generations, per_frame, 30.0)
+        (Box::new(feed), generations, per_frame, PAIR_FPS)
     };
     let recorder = match &args.record {
         Some(path) => Some(start_offline_recording(

@@ -342,3 +342,70 @@ fn a_car_crossing_into_the_corridor_is_seen_at_its_distance() {
         );
     }
 }
+
+/// `flyd replay` of one still pair with the defaults (no `--generations`) at 30 km/h, seed 1:
+/// the summary.
+fn replay_still(left: &Path, right: &Path, calib: &Path) -> serde_json::Value {
+    let out = tempfile::tempdir().expect("tempdir");
+    let mut args: Vec<std::ffi::OsString> = ["replay", "--speed", "30", "--seed", "1"]
+        .map(Into::into)
+        .into();
+    for (flag, path) in [
+        ("--left", left),
+        ("--right", right),
+        ("--calib", calib),
+        ("--out", out.path()),
+    ] {
+        args.extend([flag.into(), path.into()]);
+    }
+    util::flyd_json(args)
+}
+
+/// What a user runs first on a pair of their own: the defaults must end on the decision the
+/// scene calls for, not on the start-up's safe command (with 50 generations a clear road
+/// ended SLOW, FAULT_FALLBACK: the warm-up and the 500 ms hold that releases the safe
+/// command outlast them).
+#[test]
+fn a_still_pair_replayed_with_the_defaults_ends_on_the_scenes_decision() {
+    let pair = fixtures().join("kitti2012_train_000000");
+    let s = replay_still(
+        &pair.join("im0.png"),
+        &pair.join("im1.png"),
+        &pair.join("rig.toml"),
+    );
+    println!(
+        "kitti2012_train_000000: {} ({}) after {} generations",
+        s["command"], s["reason"], s["generations"]
+    );
+    assert_eq!(
+        (&s["command"], &s["reason"]),
+        (&"CLEAR".into(), &"PERCEPTION".into())
+    );
+    let seq = fixtures().join("kitti_raw_2011_09_26_seq12");
+    let frame = |name: &str| {
+        replay_still(
+            &seq.join("left").join(name),
+            &seq.join("right").join(name),
+            &seq.join("rig.toml"),
+        )
+    };
+    // Frame 11: the yellow car's front in the corridor, 13.8 m ahead (SGBM): confirmed, STOP
+    // at 30 km/h (stopping distance 14.9 m). Measured: STOP on 6 of seeds 1-8 at 13.3-13.7 m.
+    let s = frame("000011.png");
+    println!(
+        "seq12 frame 11: {} ({}), obstacle {}",
+        s["command"], s["reason"], s["obstacle"]
+    );
+    assert_eq!(s["command"], "STOP", "{s}");
+    let d = s["obstacle"]["distance"].as_f64().expect("an obstacle");
+    assert!((d - 13.8).abs() <= 0.1 * 13.8, "the car at {d:.2} m");
+    assert_eq!(s["obstacle"]["confirmed"], true);
+    // Frame 0: the dark MPV crosses 1.7 m and more to the right, beside the corridor: CLEAR
+    // (seeds 1-8).
+    let s = frame("000000.png");
+    println!(
+        "seq12 frame 0: {} ({}), obstacle {}",
+        s["command"], s["reason"], s["obstacle"]
+    );
+    assert_eq!(s["command"], "CLEAR", "{s}");
+}
