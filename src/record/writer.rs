@@ -931,9 +931,11 @@ mod tests {
 
     /// A writer of 8 x 8 frames into `path` that starts a new part every 30 ms, and its
     /// recorder.
+    /// A writer of 8x8 frames rotating after `rotate_bytes` of payload or `rotate_after`.
     fn rotating_writer(
         path: PathBuf,
         config_text: Option<String>,
+        (rotate_bytes, rotate_after): (Option<u64>, Option<Duration>),
     ) -> (super::super::Recorder, Writer) {
         let (recorder, rx, returns) = super::super::channel(super::super::RecorderSizes {
             queue: 16,
@@ -946,8 +948,8 @@ mod tests {
         });
         let options = RecordOptions {
             path: Some(path),
-            rotate_bytes: None,
-            rotate_after: Some(Duration::from_millis(30)),
+            rotate_bytes,
+            rotate_after,
             compression: true,
             live: None,
             config_text,
@@ -975,8 +977,11 @@ mod tests {
     #[test]
     fn rotation_by_time_starts_a_new_complete_file() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let (recorder, writer) =
-            rotating_writer(dir.path().join("t.mcap"), Some("[cameras]\n".into()));
+        let (recorder, writer) = rotating_writer(
+            dir.path().join("t.mcap"),
+            Some("[cameras]\n".into()),
+            (None, Some(Duration::from_millis(30))),
+        );
         let stats = |t: u64| super::super::topics::StatsEvent {
             t_ns: t,
             fps_left: 10.0,
@@ -1018,7 +1023,9 @@ mod tests {
     #[test]
     fn a_part_holding_one_cameras_frames_still_carries_both_calibrations() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let (recorder, writer) = rotating_writer(dir.path().join("c.mcap"), None);
+        // Rotated by size, after every record: by time, a part switched more slowly than the
+        // wait between frames on a loaded CI machine (2 parts, not 3).
+        let (recorder, writer) = rotating_writer(dir.path().join("c.mcap"), None, (Some(1), None));
         let pixels = [0u8; 8 * 8 * 3];
         for t in 0..3 {
             // The left camera only, as when a part ends between a left and a right frame.
