@@ -10,6 +10,8 @@
 //! Needs target/py (scripts/prereqs installs it); without it the reader check fails with
 //! a message, unless FLYD_ALLOW_NO_PY is set, in which case it prints SKIP.
 
+mod util;
+
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -583,25 +585,9 @@ fn a_rig_with_a_row_correction_records_and_replays_bit_for_bit() {
     // The daemon's right frames are read 0.3 rows down (rectification.right_row_offset_px):
     // the replay must correct the recorded pixels the same way, or the flies part.
     let rigs = tempfile::tempdir().expect("tempdir");
-    let rig = std::fs::read_to_string(repo("tests/vm/config/mock-rig-320x240.toml")).expect("rig");
-    let rig_file = rigs.path().join("rig.toml");
-    std::fs::write(
-        &rig_file,
-        format!("{rig}\n[rectification]\nright_row_offset_px = 0.3\n"),
-    )
-    .expect("write rig");
-    let r = record_with(
-        |demo| {
-            demo.replace("width = 640", "width = 320")
-                .replace("height = 480", "height = 240")
-                .replace("flies = 5000", "flies = 1000")
-                .replace(
-                    "builtin = \"mock\"",
-                    &format!("file = {:?}", rig_file.display().to_string()),
-                )
-        },
-        None,
-    );
+    let rig_file =
+        util::mock_rig_320x240(rigs.path(), "[rectification]\nright_row_offset_px = 0.3\n");
+    let r = record_with(|demo| util::demo_320x240_on(demo, &rig_file), None);
     let s = replay_ok(&r.mcap, &[]);
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");

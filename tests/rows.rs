@@ -15,23 +15,10 @@ fn repo(path: &str) -> std::path::PathBuf {
 /// the first rectification event it logged.
 fn measured(rectification: &str) -> serde_json::Value {
     let dir = tempfile::tempdir().expect("tempdir");
-    let rig = std::fs::read_to_string(repo("tests/vm/config/mock-rig-320x240.toml")).expect("rig");
-    let rig_file = dir.path().join("rig.toml");
-    std::fs::write(&rig_file, format!("{rig}\n{rectification}")).expect("write rig");
+    let rig_file = util::mock_rig_320x240(dir.path(), rectification);
     let demo = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
-    let config = demo
-        .replace("width = 640", "width = 320")
-        .replace("height = 480", "height = 240")
-        .replace("flies = 5000", "flies = 1000")
-        .replace(
-            "builtin = \"mock\"",
-            &format!("file = {:?}", rig_file.display().to_string()),
-        )
+    let config = util::demo_320x240_on(&demo, &rig_file)
         .replace("mock = \"pedestrian-steps-in\"", "mock = \"pedestrian-4m\"");
-    assert!(
-        config.contains("file = "),
-        "the demo config changed: {config}"
-    );
     let config_file = dir.path().join("flyd.toml");
     std::fs::write(&config_file, config).expect("write config");
     let out = util::output_ok(

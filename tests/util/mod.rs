@@ -30,3 +30,32 @@ where
     let output = output_ok(cmd.args(&args), &format!("flyd {args:?}"));
     serde_json::from_slice(&output.stdout).expect("a JSON document on stdout")
 }
+
+/// The VM suite's 320x240 mock rig (`tests/vm/config/mock-rig-320x240.toml`) with `extra` TOML
+/// appended, written into `dir` as `rig.toml`: its path.
+pub fn mock_rig_320x240(dir: &std::path::Path, extra: &str) -> std::path::PathBuf {
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let rig = std::fs::read_to_string(repo.join("tests/vm/config/mock-rig-320x240.toml"))
+        .expect("the mock rig file");
+    let path = dir.join("rig.toml");
+    std::fs::write(&path, format!("{rig}\n{extra}")).expect("write rig");
+    path
+}
+
+/// `demo` (the text of config/demo.toml) at 320x240 with 1000 flies, calibrated by the rig
+/// file `rig` instead of the built-in mock rig.
+pub fn demo_320x240_on(demo: &str, rig: &std::path::Path) -> String {
+    let config = demo
+        .replace("width = 640", "width = 320")
+        .replace("height = 480", "height = 240")
+        .replace("flies = 5000", "flies = 1000")
+        .replace(
+            "builtin = \"mock\"",
+            &format!("file = {:?}", rig.display().to_string()),
+        );
+    assert!(
+        config.contains("file = "),
+        "the demo config changed: {config}"
+    );
+    config
+}
