@@ -255,9 +255,11 @@ impl<B: CanBus> ControlThread<B> {
         self.notifier.extend_startup(start);
 
         while !(self.shutdown.is_requested() || self.finish.is_requested()) {
-            self.drain(&mut s);
+            // The vehicle's frames first: a snapshot is decided at the speed the bus says now,
+            // not at the one known before a late turn (frames waiting in the socket are news).
             let now = self.clock.now();
             self.receive(&mut s, now);
+            self.drain(&mut s);
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
             let escalation = s
@@ -304,6 +306,8 @@ impl<B: CanBus> ControlThread<B> {
             if !wait.is_zero() {
                 // Wakes on the next snapshot: an escalation leaves without waiting for the turn.
                 if let Ok(snapshot) = self.inputs.snapshots.recv_timeout(wait) {
+                    let now = self.clock.now();
+                    self.receive(&mut s, now);
                     self.take(&mut s, snapshot);
                 }
             }
