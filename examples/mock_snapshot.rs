@@ -1,11 +1,14 @@
 //! Writes one frame of a mock scenario as PNGs: left and right images and a false-colour depth
 //! map of the left image, for looking at what the simulated cameras see.
 //!
-//! `cargo run --release --example mock_snapshot -- [scenario] [frame] [out-prefix]`
-//! (defaults: pedestrian-4m, 0, /tmp/mock-) writes `<prefix>left.png`, `<prefix>right.png` and
-//! `<prefix>depth.png`.
+//! `cargo run --release --example mock_snapshot -- [scenario] [frame] [out-prefix] [WxH]`
+//! (defaults: pedestrian-4m, 0, /tmp/mock-, 640x480) writes `<prefix>left.png`,
+//! `<prefix>right.png` and `<prefix>depth.png`, and each image as a YUYV camera would deliver
+//! it to flyd: `<prefix>left-yuyv.png` (colour from its shared chroma, `cameras.channels =
+//! "colour"`) and `<prefix>left-luma.png` (`"luma"`, the default), likewise for the right.
 
 use anyhow::{Context, Result, bail};
+use flyd::capture::convert::{Layout, rgb_to_yuyv, yuyv_to_grey, yuyv_to_rgb};
 use flyd::mock::MockStereo;
 use hw_mock::Scenario;
 
@@ -20,7 +23,13 @@ fn main() -> Result<()> {
     let Some(scenario) = Scenario::by_name(&name) else {
         bail!("unknown scenario {name:?}; known: {:?}", Scenario::names());
     };
-    let (w, h) = (640, 480);
+    let (w, h) = match args.next() {
+        Some(size) => {
+            let (w, h) = size.split_once('x').context("size as WxH")?;
+            (w.parse().context("width")?, h.parse().context("height")?)
+        }
+        None => (640u32, 480u32),
+    };
     let mut stereo = MockStereo::new(scenario, w, h)?;
     stereo.set_ground_truth(true);
     let (left, right) = stereo.frame(frame)?;
@@ -29,6 +38,23 @@ fn main() -> Result<()> {
         image::save_buffer(&path, img, w, h, image::ExtendedColorType::Rgb8)
             .with_context(|| format!("writing {path}"))?;
         println!("wrote {path}");
+        let (wu, hu) = (w as usize, h as usize);
+        let mut yuyv = vec![0; wu * hu * 2];
+        rgb_to_yuyv(img, wu, &mut yuyv)?;
+        let layout = Layout::new(wu, hu, wu * 2);
+        let mut colour = vec![0; wu * hu * 3];
+        yuyv_to_rgb(&yuyv, layout, &mut colour)?;
+        let mut luma = vec![0; wu * hu];
+        yuyv_to_grey(&yuyv, layout, &mut luma)?;
+        for (kind, pixels, colour_type) in [
+            ("yuyv", &colour, image::ExtendedColorType::Rgb8),
+            ("luma", &luma, image::ExtendedColorType::L8),
+        ] {
+            let path = format!("{prefix}{side}-{kind}.png");
+            image::save_buffer(&path, pixels, w, h, colour_type)
+                .with_context(|| format!("writing {path}"))?;
+            println!("wrote {path}");
+        }
     }
     // Depth: near = bright; 1/z keeps the near field readable; sky black.
     let depth = stereo.left_depth().context("ground truth was enabled")?;

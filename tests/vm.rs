@@ -25,16 +25,13 @@ mod can_log;
 #[path = "common/dbc_signals.rs"]
 mod dbc_signals;
 
-// The feeder's RGB -> YUYV conversion, to check on the host what the guest's cameras delivered.
-#[path = "vm/guest/src/feeder/yuyv.rs"]
-mod yuyv;
-
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::OnceLock;
 use std::time::Duration;
 
 use can_log::{Decoder, Frame};
+use flyd::capture::convert::rgb_to_yuyv;
 use flyd::mock::MockStereo;
 use flyd_core::status::FaultBits;
 use harness::{Run, Scenario, guest_tool};
@@ -131,8 +128,9 @@ fn feeder_frames(scenario: &str, width: u32, height: u32) -> Vec<[Vec<u8>; 2]> {
         .map(|i| {
             let (l, r) = stereo.frame(i).expect("renders");
             let mut out = [vec![0; l.len() / 3 * 2], vec![0; r.len() / 3 * 2]];
-            yuyv::rgb_to_yuyv(l, width as usize, &mut out[0]);
-            yuyv::rgb_to_yuyv(r, width as usize, &mut out[1]);
+            // The feeder's conversion: what the guest's cameras deliver.
+            rgb_to_yuyv(l, width as usize, &mut out[0]).expect("YUYV");
+            rgb_to_yuyv(r, width as usize, &mut out[1]).expect("YUYV");
             out
         })
         .collect()

@@ -268,6 +268,46 @@ pub fn yuyv_to_rgb(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), Con
     Ok(())
 }
 
+/// Packed RGB8 (`width * height * 3` bytes) to YUYV (`width * height * 2` bytes, BT.601
+/// limited range, the inverse of [`yuyv_to_rgb`]): what a camera sends of a rendered frame
+/// (the VM suite's feeder, `examples/yuyv_pair.rs`). Each pair of pixels shares the mean of
+/// their chroma; `width` must be even.
+pub fn rgb_to_yuyv(rgb: &[u8], width: usize, yuyv: &mut [u8]) -> Result<(), ConvertError> {
+    let height = rgb.len() / 3 / width.max(1);
+    if !width.is_multiple_of(2) || rgb.len() != width * height * 3 {
+        return Err(ConvertError::Geometry {
+            format: CaptureFormat::Yuyv,
+            width: width as u32,
+            height: height as u32,
+            reason: format!("{} RGB bytes at an even width", rgb.len()),
+        });
+    }
+    if yuyv.len() != width * height * 2 {
+        return Err(ConvertError::Output {
+            expected: width * height * 2,
+            got: yuyv.len(),
+        });
+    }
+    for (px, out) in rgb.chunks_exact(6).zip(yuyv.chunks_exact_mut(4)) {
+        let (y0, u0, v0) = rgb_to_ycbcr(px[0], px[1], px[2]);
+        let (y1, u1, v1) = rgb_to_ycbcr(px[3], px[4], px[5]);
+        out[0] = y0;
+        out[1] = ((u0 + u1 + 1) / 2) as u8;
+        out[2] = y1;
+        out[3] = ((v0 + v1 + 1) / 2) as u8;
+    }
+    Ok(())
+}
+
+/// BT.601 limited range, 8-bit fixed point: Y in 16..=235, Cb and Cr in 16..=240 (as i32).
+fn rgb_to_ycbcr(r: u8, g: u8, b: u8) -> (u8, i32, i32) {
+    let (r, g, b) = (i32::from(r), i32::from(g), i32::from(b));
+    let y = ((66 * r + 129 * g + 25 * b + 128) >> 8) + 16;
+    let cb = ((-38 * r - 74 * g + 112 * b + 128) >> 8) + 128;
+    let cr = ((112 * r - 94 * g - 18 * b + 128) >> 8) + 128;
+    (y as u8, cb, cr)
+}
+
 /// YUYV to grey: the Y bytes as they are.
 pub fn yuyv_to_grey(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), ConvertError> {
     for (input, output) in layout.rows(CaptureFormat::Yuyv, src, dst, 1)? {
@@ -540,6 +580,49 @@ impl FrameConverter {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Through flyd's own converter, colours come back within the rounding of 8-bit YCbCr.
+    #[test]
+    fn round_trip_through_flyds_converter() {
+        let (w, h) = (8usize, 4usize);
+        let mut rgb = Vec::new();
+        for i in 0..w * h {
+            // Pairs of equal pixels, so that shared chroma loses nothing.
+            let k = (i / 2) as u32;
+            rgb.extend_from_slice(&[
+                (k * 37 % 256) as u8,
+                (k * 91 % 256) as u8,
+                (k * 53 % 256) as u8,
+            ]);
+        }
+        rgb[..6].copy_from_slice(&[0, 0, 0, 0, 0, 0]);
+        rgb[6..12].copy_from_slice(&[255, 255, 255, 255, 255, 255]);
+        let mut yuyv = vec![0; w * h * 2];
+        rgb_to_yuyv(&rgb, w, &mut yuyv).expect("converts");
+        assert_eq!(&yuyv[..4], &[16, 128, 16, 128], "black");
+        assert_eq!(&yuyv[4..8], &[235, 128, 235, 128], "white");
+        let mut back = vec![0; w * h * 3];
+        yuyv_to_rgb(&yuyv, Layout::new(w, h, w * 2), &mut back).expect("converts");
+        for (i, (a, b)) in rgb.iter().zip(&back).enumerate() {
+            assert!(a.abs_diff(*b) <= 4, "byte {i}: {a} came back as {b}");
+        }
+    }
+
+    #[test]
+    fn rgb_to_yuyv_refuses_what_it_cannot_convert() {
+        let mut out = vec![0; 12];
+        assert!(matches!(
+            rgb_to_yuyv(&[0; 18], 3, &mut out),
+            Err(ConvertError::Geometry { .. })
+        ));
+        assert!(matches!(
+            rgb_to_yuyv(&[0; 24], 4, &mut out[..6]),
+            Err(ConvertError::Output {
+                expected: 16,
+                got: 6
+            })
+        ));
+    }
 
     /// A deterministic byte generator for the garbage tests (no RNG dependency needed).
     fn noise(seed: u64, len: usize) -> Vec<u8> {

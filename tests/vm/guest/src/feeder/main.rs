@@ -29,7 +29,6 @@
 
 #[path = "../output.rs"]
 mod output;
-mod yuyv;
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -38,6 +37,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, Result, bail, ensure};
 use clap::{Parser, ValueEnum};
+use flyd::capture::convert::rgb_to_yuyv;
 use flyd::mock::MockStereo;
 use hw_mock::Scenario;
 use v4l::Device;
@@ -247,8 +247,8 @@ impl Frames {
             .stereo
             .frame(index)
             .with_context(|| format!("rendering frame {index}"))?;
-        yuyv::rgb_to_yuyv(l, self.width, &mut out[0]);
-        yuyv::rgb_to_yuyv(r, self.width, &mut out[1]);
+        rgb_to_yuyv(l, self.width, &mut out[0]).context("YUYV of the left frame")?;
+        rgb_to_yuyv(r, self.width, &mut out[1]).context("YUYV of the right frame")?;
         Ok(())
     }
 
