@@ -180,6 +180,8 @@ struct RawCameras {
     fps: f64,
     #[serde(default = "default_pixel_format")]
     pixel_format: CaptureFormat,
+    #[serde(default)]
+    channels: Channels,
     #[serde(default = "default_tolerance_ms")]
     timestamp_tolerance_ms: f64,
     #[serde(default = "default_stale_frames")]
@@ -590,6 +592,12 @@ impl RawCameras {
                     ),
                 );
             }
+            if self.pixel_format == CaptureFormat::Grey && self.channels == Channels::Colour {
+                return bad(
+                    "cameras.channels",
+                    "\"colour\" from a GREY camera: it sends luma only",
+                );
+            }
             if self.pixel_format == CaptureFormat::Yuyv && !self.width.is_multiple_of(2) {
                 return bad(
                     "cameras.width",
@@ -622,6 +630,7 @@ impl RawCameras {
             height: self.height,
             fps: self.fps,
             pixel_format: self.pixel_format,
+            channels: self.channels,
             timestamp_tolerance: tolerance,
             stale_frames: self.stale_frames,
         })

@@ -88,6 +88,31 @@ fn unknown_keys_are_named() {
 }
 
 #[test]
+fn the_flies_compare_luma_unless_colour_is_asked_of_a_colour_camera() {
+    let c = parse(MINIMAL).expect("valid");
+    assert_eq!(c.cameras.channels, Channels::Luma);
+    assert_eq!(c.cameras.device_output(), PixelFormat::Grey8);
+    let c = parse(&with("cameras", "channels = \"colour\"")).expect("valid");
+    assert_eq!(c.cameras.device_output(), PixelFormat::Rgb8);
+    let c = parse(&with(
+        "cameras",
+        "channels = \"colour\"\npixel_format = \"MJPG\"",
+    ))
+    .expect("valid");
+    assert_eq!(c.cameras.device_output(), PixelFormat::Rgb8);
+    check_err(
+        &with("cameras", "channels = \"colour\"\npixel_format = \"GREY\""),
+        "cameras.channels",
+        "luma only",
+    );
+    check_err(
+        &with("cameras", "channels = \"rgb\""),
+        "cameras.channels",
+        "unknown variant",
+    );
+}
+
+#[test]
 fn wrong_types_are_named() {
     check_err(
         &with("decision", "stop_threshold = \"high\""),

@@ -138,7 +138,7 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
                     // Not opened here: a camera missing at start is a fault the daemon reports
                     // (CAMERA_ERROR, safe command) while its capture thread retries, not a
                     // reason to refuse to start.
-                    let output = v4l2.format.natural_output();
+                    let output = c.device_output();
                     Ok(Box::new(V4l2Source::new(v4l2, output)))
                 };
             Ok((camera(left)?, camera(right)?))

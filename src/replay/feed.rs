@@ -8,7 +8,7 @@ use flyd_core::geometry::StereoRig;
 use flyd_core::motion::VehicleMotion;
 use image::RgbImage;
 
-use super::{ReplayError, load_rgb};
+use super::{LoadedImage, ReplayError, load_image};
 use crate::mock::MockStereo;
 
 /// Where replayed frames come from.
@@ -48,8 +48,8 @@ pub trait FrameFeed {
 /// images as several frames ([`PairFeed::repeated`]), as a still camera films a still scene.
 pub struct PairFeed {
     rig: StereoRig,
-    left: RgbImage,
-    right: RgbImage,
+    left: LoadedImage,
+    right: LoadedImage,
     frames: u64,
 }
 
@@ -61,10 +61,10 @@ impl PairFeed {
         calibration: &Path,
     ) -> Result<(Self, Calibration), ReplayError> {
         let cal = flyd_core::calib::load(calibration)?;
-        let (l, r) = (load_rgb(left)?, load_rgb(right)?);
+        let (l, r) = (load_image(left)?, load_image(right)?);
         for (which, img, cam, path) in [
-            ("left", &l, &cal.rig.left, left),
-            ("right", &r, &cal.rig.right, right),
+            ("left", &l.rgb, &cal.rig.left, left),
+            ("right", &r.rgb, &cal.rig.right, right),
         ] {
             check_size(which, img, cam, path, calibration)?;
         }
@@ -105,11 +105,8 @@ impl FrameFeed for PairFeed {
         frame: &mut StereoFrame,
         left: &mut RgbImage,
     ) -> Result<(), ReplayError> {
-        frame.left.prepare(PixelFormat::Rgb8, self.left.as_raw())?;
-        frame
-            .right
-            .prepare(PixelFormat::Rgb8, self.right.as_raw())?;
-        left.clone_from(&self.left);
+        prepare_pair(frame, &self.left, &self.right)?;
+        left.clone_from(&self.left.rgb);
         Ok(())
     }
 }
@@ -284,16 +281,15 @@ impl FrameFeed for SequenceFeed {
             .unwrap_or(usize::MAX)
             .min(self.pairs.len().saturating_sub(1));
         let (l, r) = &self.pairs[i];
-        let (li, ri) = (load_rgb(l)?, load_rgb(r)?);
+        let (li, ri) = (load_image(l)?, load_image(r)?);
         for (which, img, cam, path) in [
-            ("left", &li, &self.rig.left, l),
-            ("right", &ri, &self.rig.right, r),
+            ("left", &li.rgb, &self.rig.left, l),
+            ("right", &ri.rgb, &self.rig.right, r),
         ] {
             check_size(which, img, cam, path, &self.calibration)?;
         }
-        frame.left.prepare(PixelFormat::Rgb8, li.as_raw())?;
-        frame.right.prepare(PixelFormat::Rgb8, ri.as_raw())?;
-        *left = li;
+        prepare_pair(frame, &li, &ri)?;
+        *left = li.rgb;
         Ok(())
     }
 
@@ -307,6 +303,26 @@ impl FrameFeed for SequenceFeed {
 }
 
 /// An image of another size than its camera: an error naming both.
+/// The pair into `frame`: in grey when both files are grey (a grey camera's frames, or the
+/// luma a YUYV camera is compared in: `cameras.channels = "luma"`), else in RGB.
+fn prepare_pair(
+    frame: &mut StereoFrame,
+    left: &LoadedImage,
+    right: &LoadedImage,
+) -> Result<(), ReplayError> {
+    match (&left.luma, &right.luma) {
+        (Some(l), Some(r)) => {
+            frame.left.prepare(PixelFormat::Grey8, l)?;
+            frame.right.prepare(PixelFormat::Grey8, r)?;
+        }
+        _ => {
+            frame.left.prepare(PixelFormat::Rgb8, left.rgb.as_raw())?;
+            frame.right.prepare(PixelFormat::Rgb8, right.rgb.as_raw())?;
+        }
+    }
+    Ok(())
+}
+
 fn check_size(
     which: &'static str,
     img: &RgbImage,
@@ -326,4 +342,49 @@ fn check_size(
         want_w: cam.width(),
         want_h: cam.height(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flyd_core::frame::PreparedImage;
+
+    /// Two grey files are compared in grey (as the daemon compares a grey camera's frames, or
+    /// a YUYV camera's luma); a grey file beside a colour one, in colour.
+    #[test]
+    fn a_pair_of_grey_files_is_compared_in_grey() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let rig = dir.path().join("rig.toml");
+        std::fs::copy(
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/tests/vm/config/mock-rig-320x240.toml"
+            ),
+            &rig,
+        )
+        .expect("rig");
+        let grey: Vec<u8> = (0..320 * 240).map(|i| (i * 7 % 251) as u8).collect();
+        let colour: Vec<u8> = grey.iter().flat_map(|&g| [g, g / 2, 255 - g]).collect();
+        let file = |name: &str, colour_type, pixels: &[u8]| {
+            let path = dir.path().join(name);
+            image::save_buffer(&path, pixels, 320, 240, colour_type).expect("png");
+            path
+        };
+        let (gl, gr) = (
+            file("gl.png", image::ExtendedColorType::L8, &grey),
+            file("gr.png", image::ExtendedColorType::L8, &grey),
+        );
+        let cr = file("cr.png", image::ExtendedColorType::Rgb8, &colour);
+        let channels = |left: &Path, right: &Path| {
+            let (mut feed, _) = PairFeed::load(left, right, &rig).expect("loads");
+            let image = || PreparedImage::new(320, 240).expect("image");
+            let mut frame = StereoFrame::new(image(), image(), 0);
+            let mut overlay = RgbImage::new(1, 1);
+            feed.load(0, &mut frame, &mut overlay).expect("prepares");
+            assert_eq!(overlay.dimensions(), (320, 240), "the overlay is RGB");
+            (frame.left.channels(), frame.right.channels())
+        };
+        assert_eq!(channels(&gl, &gr), (1, 1));
+        assert_eq!(channels(&gl, &cr), (3, 3));
+    }
 }

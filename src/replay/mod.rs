@@ -463,6 +463,20 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplayError + '_ {
 /// and says nothing, which would replay a different image than the file's. (A truncated PNG
 /// fails its own checks.)
 pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
+    load_image(path).map(|i| i.rgb)
+}
+
+/// An image file as replay uses it: RGB (for the overlays, and the flies unless both images
+/// of a pair are grey), and its luma bytes if the file has no colour.
+pub struct LoadedImage {
+    pub rgb: RgbImage,
+    /// `Some`: the file is grey (a grey camera's frame, or a colour camera's luma), and a pair
+    /// of two grey files is compared in grey, as the daemon compares a grey camera's frames.
+    pub luma: Option<Vec<u8>>,
+}
+
+/// [`load_rgb`], keeping the luma of a grey file.
+pub fn load_image(path: &Path) -> Result<LoadedImage, ReplayError> {
     let name = || path.display().to_string();
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     // The content says what it is; failing that, the extension (so that a damaged PNG is
@@ -482,12 +496,17 @@ pub fn load_rgb(path: &Path) -> Result<RgbImage, ReplayError> {
             });
         }
     }
-    image::load_from_memory_with_format(&bytes, format)
-        .map(|i| i.to_rgb8())
-        .map_err(|source| ReplayError::Image {
+    let image = image::load_from_memory_with_format(&bytes, format).map_err(|source| {
+        ReplayError::Image {
             path: name(),
             source,
-        })
+        }
+    })?;
+    let luma = (!image.color().has_color()).then(|| image.to_luma8().into_raw());
+    Ok(LoadedImage {
+        rgb: image.to_rgb8(),
+        luma,
+    })
 }
 
 #[cfg(test)]
