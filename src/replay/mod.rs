@@ -106,8 +106,23 @@ pub enum ReplayError {
     Perception(#[from] PerceptionError),
     #[error("decision")]
     Decision(#[from] DecisionConfigError),
-    #[error("CAN encoding")]
-    Can(#[source] flyd_core::can::CanConfigError),
+    #[error("CAN configuration")]
+    Can(#[from] flyd_core::can::CanConfigError),
+    #[error("reading the recording")]
+    Read(#[from] crate::record::read::ReadError),
+    #[error(
+        "{0}: no configuration attached (config.toml) and none given: pass --config with the \
+         file the daemon ran with"
+    )]
+    NoConfig(String),
+    #[error("the recording's configuration")]
+    Config(#[from] crate::config::ConfigError),
+    #[error("{0}: the recording has no images (record.images = false): nothing to replay")]
+    NoImages(String),
+    #[error("the replay's recording")]
+    Record(#[from] crate::record::WriterError),
+    #[error("a recorded JPEG frame")]
+    Jpeg(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
 
 /// How a replay runs.
@@ -346,8 +361,7 @@ impl ReplayRecording {
     fn new(recorder: crate::record::Recorder) -> Result<Self, ReplayError> {
         let bus = crate::bus::MemoryBus::new(flyd_core::clock::ManualClock::new(Duration::ZERO));
         let tx =
-            flyd_core::can::Transmitter::new(bus.clone(), flyd_core::can::CanConfig::default())
-                .map_err(ReplayError::Can)?;
+            flyd_core::can::Transmitter::new(bus.clone(), flyd_core::can::CanConfig::default())?;
         Ok(Self {
             recorder,
             tx,

@@ -27,49 +27,21 @@ use std::time::Duration;
 
 use crate::bus::MemoryBus;
 use crate::capture::{CaptureFormat, FrameConverter};
-use crate::config::{ConfigError, DaemonConfig};
+use crate::config::DaemonConfig;
 use crate::daemon::pairer::Side;
 use crate::record::nanos;
-use crate::record::read::{ControlEvent, Frame, ReadError, Recording};
+use crate::record::read::{ControlEvent, Frame, Recording};
 use crate::record::topics::{InputFrom, PairEvent};
+use crate::replay::ReplayError;
+use flyd_core::can::Transmitter;
 use flyd_core::can::messages::CommandMsg;
-use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::clock::ManualClock;
-use flyd_core::decision::{Decider, DecisionConfigError, DecisionInput};
-use flyd_core::engine::EngineError;
-use flyd_core::frame::{FrameError, PixelFormat, PreparedImage, StereoFrame};
-use flyd_core::motion::{MotionMonitor, VehicleMotion};
-use flyd_core::perception::{Perception, PerceptionError};
-use flyd_core::status::FaultBits;
+use flyd_core::decision::{Decider, DecisionInput};
 
-#[derive(Debug, thiserror::Error)]
-pub enum RecordedError {
-    #[error("reading the recording")]
-    Read(#[from] ReadError),
-    #[error(
-        "{0}: no configuration attached (config.toml) and none given: pass --config with the \
-         file the daemon ran with"
-    )]
-    NoConfig(String),
-    #[error("the recording's configuration")]
-    Config(#[from] ConfigError),
-    #[error("{0}: the recording has no images (record.images = false): nothing to replay")]
-    NoImages(String),
-    #[error("frame")]
-    Frame(#[from] FrameError),
-    #[error("engine")]
-    Engine(#[from] EngineError),
-    #[error("perception")]
-    Perception(#[from] PerceptionError),
-    #[error("decision")]
-    Decision(#[from] DecisionConfigError),
-    #[error("CAN configuration")]
-    Can(#[from] CanConfigError),
-    #[error("the replay's recording")]
-    Record(#[from] crate::record::WriterError),
-    #[error("a recorded JPEG frame")]
-    Jpeg(#[source] Box<dyn std::error::Error + Send + Sync>),
-}
+use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd_core::motion::{MotionMonitor, VehicleMotion};
+use flyd_core::perception::Perception;
+use flyd_core::status::FaultBits;
 
 /// Where a replay first differs from its recording.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -112,6 +84,18 @@ impl RecordedSummary {
     pub fn reproduced(&self) -> bool {
         self.divergence.is_none()
     }
+
+    /// Keeps the first divergence found.
+    fn diverge(&mut self, what: &'static str, t: f64, generation: Option<u64>, detail: String) {
+        if self.divergence.is_none() {
+            self.divergence = Some(Divergence {
+                what,
+                t,
+                generation,
+                detail,
+            });
+        }
+    }
 }
 
 /// What one replayed generation produced that the decision reads.
@@ -139,7 +123,7 @@ pub fn replay(
     config: Option<&Path>,
     seed: Option<u64>,
     record: Option<StartRecording<'_>>,
-) -> Result<RecordedSummary, RecordedError> {
+) -> Result<RecordedSummary, ReplayError> {
     let recording = Recording::open(path)?;
     let shown = path.display().to_string();
     let mut config = match config {
@@ -147,7 +131,7 @@ pub fn replay(
         None => {
             let text = recording
                 .config_text()?
-                .ok_or_else(|| RecordedError::NoConfig(shown.clone()))?;
+                .ok_or_else(|| ReplayError::NoConfig(shown.clone()))?;
             let meta = recording.metadata()?;
             let origin = meta
                 .get("config_path")
@@ -160,7 +144,7 @@ pub fn replay(
     }
     let events = recording.events()?;
     if events.images == [0, 0] {
-        return Err(RecordedError::NoImages(shown));
+        return Err(ReplayError::NoImages(shown));
     }
     let mut summary = RecordedSummary {
         complete: recording.complete(),
@@ -227,7 +211,7 @@ fn replay_perception(
     start: u64,
     recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
-) -> Result<Vec<Option<Outcome>>, RecordedError> {
+) -> Result<Vec<Option<Outcome>>, ReplayError> {
     let flyd_core::calib::Calibration {
         rig,
         right_row_offset_px,
@@ -279,16 +263,16 @@ fn replay_perception(
             }
         };
         if !found {
-            summary.divergence = Some(Divergence {
-                what: "recording",
-                t: secs_after(pair.left_ns, start),
-                generation: Some(pair.generation),
-                detail: format!(
+            summary.diverge(
+                "recording",
+                secs_after(pair.left_ns, start),
+                Some(pair.generation),
+                format!(
                     "the frames of pair {} (left {} ns, right {} ns) are not in the recording \
                      (the recorder dropped them): the replay stops there",
                     pair.pair_id, pair.left_ns, pair.right_ns
                 ),
-            });
+            );
             break;
         }
         // The generations the daemon ran on the previous pair before this one came.
@@ -306,7 +290,7 @@ fn replay_perception(
                     // An MJPEG camera's frame: decoded and prepared as the capture thread did.
                     None => jpeg(&mut mjpeg, w, h)?
                         .prepare(&frame.pixels, image)
-                        .map_err(|e| RecordedError::Jpeg(Box::new(e)))?,
+                        .map_err(|e| ReplayError::Jpeg(Box::new(e)))?,
                 }
                 if let (Some(r), Some(retained)) = (recorder, image.pixels()) {
                     let at = Duration::from_nanos(frame.timestamp_ns);
@@ -330,15 +314,15 @@ fn replay_perception(
         }
         generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
         if generation != pair.generation {
-            summary.divergence = Some(Divergence {
-                what: "recording",
-                t: secs_after(pair.left_ns, start),
-                generation: Some(pair.generation),
-                detail: format!(
+            summary.diverge(
+                "recording",
+                secs_after(pair.left_ns, start),
+                Some(pair.generation),
+                format!(
                     "pair {} was first evolved at generation {} in the recording, {} here",
                     pair.pair_id, pair.generation, generation
                 ),
-            });
+            );
             break;
         }
         next += 1;
@@ -358,15 +342,15 @@ fn jpeg(
     slot: &mut Option<FrameConverter>,
     w: u32,
     h: u32,
-) -> Result<&mut FrameConverter, RecordedError> {
+) -> Result<&mut FrameConverter, ReplayError> {
     if slot.is_none() {
         let max = w as usize * h as usize * 3;
         let c = FrameConverter::new(CaptureFormat::Mjpg, w, h, 0, PixelFormat::Rgb8, max)
-            .map_err(|e| RecordedError::Jpeg(Box::new(e)))?;
+            .map_err(|e| ReplayError::Jpeg(Box::new(e)))?;
         *slot = Some(c);
     }
     slot.as_mut()
-        .ok_or_else(|| RecordedError::Jpeg(Box::new(std::io::Error::other("no MJPEG converter"))))
+        .ok_or_else(|| ReplayError::Jpeg(Box::new(std::io::Error::other("no MJPEG converter"))))
 }
 
 fn step(
@@ -375,7 +359,7 @@ fn step(
     outcomes: &mut Vec<Option<Outcome>>,
     recorder: Option<&crate::record::Recorder>,
     at: Duration,
-) -> Result<u64, RecordedError> {
+) -> Result<u64, ReplayError> {
     let report = *perception.step(stereo)?;
     let g = report.stats.generation;
     if let Some(r) = recorder {
@@ -417,7 +401,7 @@ fn replay_decisions(
     start: u64,
     recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
-) -> Result<(), RecordedError> {
+) -> Result<(), ReplayError> {
     let mut decider = Decider::new(config.decision)?;
     let bus = MemoryBus::new(ManualClock::new(Duration::ZERO));
     let mut tx = Transmitter::new(bus.clone(), config.can.messages)?;
@@ -428,11 +412,6 @@ fn replay_decisions(
     let mut monitor = config.motion().map(MotionMonitor::new);
     let assumed = config.vehicle.assumed_speed;
     let mut worst: Option<DecisionInput> = None;
-    let diverge = |summary: &mut RecordedSummary, d: Divergence| {
-        if summary.divergence.is_none() {
-            summary.divergence = Some(d);
-        }
-    };
     let outcome = |g: u64| {
         outcomes
             .get(usize::try_from(g).unwrap_or(usize::MAX))
@@ -455,14 +434,11 @@ fn replay_decisions(
                 }
                 let t = Duration::from_nanos(p.t_ns);
                 let Some(o) = outcome(p.generation) else {
-                    diverge(
-                        summary,
-                        Divergence {
-                            what: "recording",
-                            t: secs_after(nanos(t), start),
-                            generation: Some(p.generation),
-                            detail: "a snapshot of a generation the replay did not run".into(),
-                        },
+                    summary.diverge(
+                        "recording",
+                        secs_after(nanos(t), start),
+                        Some(p.generation),
+                        "a snapshot of a generation the replay did not run".into(),
                     );
                     break;
                 };
@@ -470,34 +446,28 @@ fn replay_decisions(
                 if same(o.global_warning, p.global_warning) && same_opt(o.obstacle, p.obstacle_m) {
                     summary.snapshots_identical += 1;
                 } else {
-                    diverge(
-                        summary,
-                        Divergence {
-                            what: "perception",
-                            t: secs_after(nanos(t), start),
-                            generation: Some(p.generation),
-                            detail: format!(
-                                "global warning {} / obstacle {:?} m recorded, {} / {:?} replayed",
-                                p.global_warning, p.obstacle_m, o.global_warning, o.obstacle
-                            ),
-                        },
+                    summary.diverge(
+                        "perception",
+                        secs_after(nanos(t), start),
+                        Some(p.generation),
+                        format!(
+                            "global warning {} / obstacle {:?} m recorded, {} / {:?} replayed",
+                            p.global_warning, p.obstacle_m, o.global_warning, o.obstacle
+                        ),
                     );
                 }
                 if let Some(m) = &monitor {
                     let speed = m.decision_speed(t, assumed);
                     if !same(speed, p.speed) {
-                        diverge(
-                            summary,
-                            Divergence {
-                                what: "speed",
-                                t: secs_after(nanos(t), start),
-                                generation: Some(p.generation),
-                                detail: format!(
-                                    "the recorded VCU_Motion frames give {speed} m/s, the daemon \
+                        summary.diverge(
+                            "speed",
+                            secs_after(nanos(t), start),
+                            Some(p.generation),
+                            format!(
+                                "the recorded VCU_Motion frames give {speed} m/s, the daemon \
                                  decided at {} m/s",
-                                    p.speed
-                                ),
-                            },
+                                p.speed
+                            ),
                         );
                     }
                 }
@@ -604,41 +574,34 @@ fn replay_decisions(
                 if recorded.is_some() && recorded == mine {
                     summary.commands_identical += 1;
                 } else {
-                    diverge(
-                        summary,
-                        Divergence {
-                            what: "command",
-                            t: secs_after(nanos(t), start),
-                            generation: None,
-                            detail: format!(
-                                "command {} ({} {}): sent {} recorded, {} replayed ({} {})",
-                                i + 1,
-                                d.command,
-                                d.reason,
-                                recorded
-                                    .map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
-                                mine.map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
-                                decision.command.name(),
-                                decision.reason.name(),
-                            ),
-                        },
+                    summary.diverge(
+                        "command",
+                        secs_after(nanos(t), start),
+                        None,
+                        format!(
+                            "command {} ({} {}): sent {} recorded, {} replayed ({} {})",
+                            i + 1,
+                            d.command,
+                            d.reason,
+                            recorded.map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
+                            mine.map_or("nothing".into(), |r| crate::record::topics::hex(&r)),
+                            decision.command.name(),
+                            decision.reason.name(),
+                        ),
                     );
                 }
             }
         }
     }
     if summary.commands_replayed != summary.commands_recorded {
-        diverge(
-            summary,
-            Divergence {
-                what: "command",
-                t: f64::NAN,
-                generation: None,
-                detail: format!(
-                    "{} FLYD_Command frames recorded, {} decisions replayed",
-                    summary.commands_recorded, summary.commands_replayed
-                ),
-            },
+        summary.diverge(
+            "command",
+            f64::NAN,
+            None,
+            format!(
+                "{} FLYD_Command frames recorded, {} decisions replayed",
+                summary.commands_recorded, summary.commands_replayed
+            ),
         );
     }
     Ok(())
