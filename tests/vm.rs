@@ -69,6 +69,7 @@ fn native_runner_runs_the_vcan_scenario_where_the_devices_exist() {
         .bin("/usr/bin/timeout")
         .bin(vm.join("native.sh"))
         .bin(vm.join("lib.sh"))
+        .bin(vm.join("host.sh"))
         .bin(vm.join("scenarios/vcan_smoke.sh"))
         .run();
     run.assert_success();

@@ -7,18 +7,9 @@
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-script="" results="" timeout=180
-bins=()
-while [[ $# -gt 0 ]]; do
-    case "$1" in
-        --script) script="$2"; shift 2 ;;
-        --results) results="$2"; shift 2 ;;
-        --bin) bins+=("$2"); shift 2 ;;
-        --timeout) timeout="$2"; shift 2 ;;
-        *) echo "native.sh: unknown argument $1" >&2; exit 2 ;;
-    esac
-done
-[[ -f "$script" && -n "$results" ]] || { sed -n '2,7p' "$0" >&2; exit 2; }
+# shellcheck source=tests/vm/host.sh
+. "$here/host.sh"
+parse_scenario_args native.sh 2,7p "$@"
 script="$(cd "$(dirname "$script")" && pwd)/$(basename "$script")"
 mkdir -p "$results"
 results="$(cd "$results" && pwd)"

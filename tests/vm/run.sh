@@ -22,20 +22,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 # shellcheck source=tests/vm/host.sh
 . "$here/host.sh"
 
-script="" results="" timeout=180 KERNEL="" BASE=""
-bins=()
-while [[ $# -gt 0 ]]; do
-    case "$1" in
-        --script) script="$2"; shift 2 ;;
-        --results) results="$2"; shift 2 ;;
-        --bin) bins+=("$2"); shift 2 ;;
-        --timeout) timeout="$2"; shift 2 ;;
-        --kernel) KERNEL="$2"; shift 2 ;;
-        --base) BASE="$2"; shift 2 ;;
-        *) echo "run.sh: unknown argument $1" >&2; exit 2 ;;
-    esac
-done
-[[ -f "$script" && -n "$results" ]] || { sed -n '2,20p' "$0" >&2; exit 2; }
+parse_scenario_args run.sh 2,20p "$@"
 
 if [[ -z "$KERNEL" || -z "$BASE" ]]; then
     eval "$("$here/prepare.sh")"
