@@ -37,7 +37,6 @@ use flyd_core::can::Transmitter;
 use flyd_core::can::messages::CommandMsg;
 use flyd_core::clock::ManualClock;
 use flyd_core::decision::{Decider, DecisionInput};
-
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::motion::{MotionMonitor, VehicleMotion};
 use flyd_core::perception::Perception;
