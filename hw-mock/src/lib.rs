@@ -276,6 +276,62 @@ mod tests {
     }
 
     #[test]
+    fn a_turned_vehicle_sees_the_road_turned_and_depth_stays_in_its_frame() {
+        let cam = Pinhole::new(0.0);
+        let sensor = SensorModel::ideal();
+        let scene = Scene::posed(5.0, -0.7, 0.1, vec![]);
+        // A pose moves points and back.
+        let p = [1.5, 0.4, 12.0];
+        let back = scene.vehicle_point(scene.world_point(p));
+        assert!((0..3).all(|a| (back[a] - p[a]).abs() < 1e-12), "{back:?}");
+        // The road plane does not move in the vehicle frame when it turns: same depths.
+        let (turned, still) = (depth_of(&scene, &cam), depth_of(&Scene::empty(), &cam));
+        for (u, v) in [(80u32, 100u32), (60, 119), (100, 75)] {
+            let i = (v * cam.w + u) as usize;
+            let (a, b) = (turned[i], still[i]);
+            assert!(
+                (a - b).abs() < 1e-4 * b,
+                "road depth at ({u},{v}): {a} vs {b}"
+            );
+        }
+        // A roadside pole is where the pose puts it: a ray from the eye towards its axis in
+        // the vehicle frame meets it within a radius of that point, and nothing else does.
+        let (px, pz, radius) = world::roadside()
+            .into_iter()
+            .find_map(|o| match o {
+                Obstacle::Cylinder { x, z, radius, .. } if x == 6.2 && z > 12.0 => {
+                    Some((x, z, radius))
+                }
+                _ => None,
+            })
+            .expect("a right pole ahead");
+        let axis = scene.vehicle_point([px, 1.0, pz]);
+        let eye = world::NOMINAL_EYE;
+        let to = [axis[0] - eye[0], axis[1] - eye[1], axis[2] - eye[2]];
+        let n = (to[0] * to[0] + to[1] * to[1] + to[2] * to[2]).sqrt();
+        let ray = Ray {
+            origin: eye,
+            dir: [to[0] / n, to[1] / n, to[2] / n],
+        };
+        let seen = world::trace_scene(&ray, &scene.props(), &scene);
+        assert!(
+            (seen.t - (n - radius)).abs() < 0.05,
+            "{} vs {}",
+            seen.t,
+            n - radius
+        );
+        assert!((f64::from(seen.depth) - ray.at(seen.t)[2]).abs() < 1e-4);
+        // Unturned, the same ray misses the pole.
+        let straight = Scene::driving(5.0, vec![]);
+        let missed = world::trace_scene(&ray, &straight.props(), &straight);
+        assert!((missed.t - (n - radius)).abs() > 0.5, "{}", missed.t);
+        // The image changes with the heading.
+        let a = clean_render(&Scene::posed(5.0, -0.7, 0.0, vec![]), &cam, 0, &sensor);
+        let b = clean_render(&scene, &cam, 0, &sensor);
+        assert!(a != b);
+    }
+
+    #[test]
     fn fast_renderer_matches_the_reference() {
         let cam = Pinhole::new(-0.15);
         let sensor = SensorModel::default();
@@ -302,6 +358,11 @@ mod tests {
             Scene::driving(3.7, vec![]),
             Scene::driving(7.0, vec![Obstacle::pedestrian(0.0, 5.0)]),
             Scene::driving(7.0, vec![]),
+            // Turned and off the centre line: the static world traced in the road's frame,
+            // an obstacle in the vehicle's.
+            Scene::posed(12.0, -0.8, 0.09, vec![]),
+            Scene::posed(12.0, -0.8, 0.09, vec![Obstacle::pedestrian(0.0, 6.0)]),
+            Scene::posed(13.0, -1.9, -0.05, vec![]),
             Scene::empty(),
         ];
         let n = (cam.w * cam.h) as usize;

@@ -16,7 +16,7 @@
 
 use crate::RayCamera;
 use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
-use crate::world::{Ray, Sample, Scene, roadside_at, trace};
+use crate::world::{Ray, Sample, Scene, background, trace_scene};
 
 /// Why a render could not be done. Rendering never panics; it reports these instead.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -286,13 +286,13 @@ pub fn render(
     let (width, height) = cam.size();
     check_buffers(width, height, rgb, depth.as_deref())?;
     let response = sensor.check(camera_index)?;
-    let props = roadside_at(scene.travelled);
+    let props = scene.props();
     let mut clean = vec![0u8; rgb.len()];
     let mut i = 0;
     for v in 0..height {
         for u in 0..width {
             let s = match StoredRay::from_camera(cam, u, v).ray() {
-                Some(ray) => trace(&ray, &props, &scene.obstacles, scene.travelled),
+                Some(ray) => trace_scene(&ray, &props, scene),
                 None => INVALID_SAMPLE,
             };
             clean[3 * i..3 * i + 3].copy_from_slice(&s.rgb);
@@ -417,8 +417,9 @@ pub struct CameraRenderer {
     height: u32,
     rays: Vec<StoredRay>,
     tiles: Vec<Tile>,
-    /// The static world (road, sky, roadside) alone, the vehicle `bg_travelled` m down the road.
-    bg_travelled: f64,
+    /// The static world (road, sky, roadside) alone, the vehicle at pose `bg_pose`
+    /// ([`pose_bits`]).
+    bg_pose: [u64; 3],
     bg_rgb: Vec<u8>,
     bg_depth: Vec<f32>,
     bg_t: Vec<f64>,
@@ -471,7 +472,7 @@ impl CameraRenderer {
             height,
             rays,
             tiles,
-            bg_travelled: 0.0,
+            bg_pose: pose_bits(&Scene::default()),
             bg_rgb: vec![0; pixels * 3],
             bg_depth: vec![0.0; pixels],
             bg_t: vec![0.0; pixels],
@@ -484,7 +485,7 @@ impl CameraRenderer {
             sensed_for: None,
             noise: None,
         };
-        r.render_background(0.0);
+        r.render_background(&Scene::default());
         r.dirty = vec![false; r.tiles.len()];
         r.clean_rgb.clone_from(&r.bg_rgb);
         r.clean_depth.clone_from(&r.bg_depth);
@@ -496,12 +497,16 @@ impl CameraRenderer {
         (self.width, self.height)
     }
 
-    fn render_background(&mut self, travelled: f64) {
-        self.bg_travelled = travelled;
-        let props = roadside_at(travelled);
+    fn render_background(&mut self, scene: &Scene) {
+        self.bg_pose = pose_bits(scene);
+        let props = scene.props();
         let bounds: Vec<_> = props
             .iter()
-            .map(|p| p.bounding_sphere().zip(p.aabb()))
+            .map(|p| {
+                p.bounding_sphere()
+                    .zip(p.aabb())
+                    .map(|b| in_vehicle_frame(scene, b))
+            })
             .collect();
         let mut candidates = Vec::with_capacity(props.len());
         for tile in &self.tiles {
@@ -514,7 +519,7 @@ impl CameraRenderer {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
-                        Some(ray) => trace(&ray, &candidates, &[], travelled),
+                        Some(ray) => background(&ray, &candidates, scene),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);
@@ -535,9 +540,9 @@ impl CameraRenderer {
     }
 
     fn trace_scene(&mut self, scene: &Scene) {
-        if scene.travelled.to_bits() != self.bg_travelled.to_bits() {
+        if pose_bits(scene) != self.bg_pose {
             // The vehicle moved: a new background, and every tile restored from it.
-            self.render_background(scene.travelled);
+            self.render_background(scene);
             self.dirty.fill(true);
         }
         let w = self.width as usize;
@@ -635,6 +640,42 @@ impl CameraRenderer {
         }
         Ok(())
     }
+}
+
+/// The vehicle's pose in `scene`, bit for bit: a background is rendered again when it moves.
+fn pose_bits(scene: &Scene) -> [u64; 3] {
+    [
+        scene.travelled.to_bits(),
+        scene.lateral.to_bits(),
+        scene.heading.to_bits(),
+    ]
+}
+
+/// A prop's culling bounds: its bounding sphere (centre, radius) and axis-aligned box (low,
+/// high corners).
+type Bounds = (([f64; 3], f64), ([f64; 3], [f64; 3]));
+
+/// A prop's culling bounds in the vehicle frame: as they are for a vehicle that is not posed,
+/// else the sphere moved and the box around the turned one.
+fn in_vehicle_frame(scene: &Scene, bounds: Bounds) -> Bounds {
+    if !scene.is_posed() {
+        return bounds;
+    }
+    let ((centre, radius), (lo, hi)) = bounds;
+    let (mut vlo, mut vhi) = (
+        [f64::INFINITY, lo[1], f64::INFINITY],
+        [f64::NEG_INFINITY, hi[1], f64::NEG_INFINITY],
+    );
+    for x in [lo[0], hi[0]] {
+        for z in [lo[2], hi[2]] {
+            let p = scene.vehicle_point([x, 0.0, z]);
+            for a in [0, 2] {
+                vlo[a] = vlo[a].min(p[a]);
+                vhi[a] = vhi[a].max(p[a]);
+            }
+        }
+    }
+    ((scene.vehicle_point(centre), radius), (vlo, vhi))
 }
 
 /// The cone (apex, axis, half-angle) containing every valid ray of a tile.

@@ -1,7 +1,8 @@
 //! Scripted scenarios: sequences of scenes at a fixed frame rate, with the ground truth a
 //! reaction-time measurement needs. The vehicle is stationary in all but the `driving*` and
 //! `drive-*` ones ([`Scenario::speed_at`]),
-//! where road and roadside come towards it ([`Scene::travelled`]); obstacles are always given in
+//! where road and roadside come towards it ([`Scene::travelled`]); in `drive-30-lane-change`
+//! it also turns ([`Scenario::yaw_rate_at`], [`Scene::heading`]). Obstacles are always given in
 //! the vehicle frame. A moving vehicle's frames each cost a full render (a few frames a second
 //! at 640x480): those scenarios are for offline replay, not a live mock camera.
 
@@ -24,6 +25,15 @@ enum Kind {
     Approach {
         speed: f64,
         from: f64,
+    },
+    /// At `speed` m/s down the empty road, moving `lateral` metres to the left between
+    /// `from` and `from + duration` seconds: an S-curve of yaw rate
+    /// `A sin(2 pi (t - from) / duration)`, `A = 2 pi lateral / (speed duration^2)`.
+    LaneChange {
+        speed: f64,
+        lateral: f64,
+        from: f64,
+        duration: f64,
     },
 }
 
@@ -50,7 +60,12 @@ pub struct Scenario {
     frames: u32,
 }
 
-const ALL: [Scenario; 10] = [
+/// The lane change: 2 m to the left over 5 s, from 0.5 s.
+const LANE_CHANGE_LATERAL: f64 = 2.0;
+const LANE_CHANGE_FROM: f64 = 0.5;
+const LANE_CHANGE_DURATION: f64 = 5.0;
+
+const ALL: [Scenario; 11] = [
     Scenario {
         name: "empty-road",
         description: "Nothing in the lane; roadside walls, poles and trees only.",
@@ -122,6 +137,17 @@ const ALL: [Scenario; 10] = [
         },
         frames: 120,
     },
+    Scenario {
+        name: "drive-30-lane-change",
+        description: "At 30 km/h down the empty road, changing lane 2 m to the left between 0.5 s and 5.5 s: yaw rate up to 0.06 rad/s (3.5 deg/s) left then right, heading up to 5.5 deg (the road has no bend: this S-curve is the turning scenario). Offline replay only.",
+        kind: Kind::LaneChange {
+            speed: KMH_30,
+            lateral: LANE_CHANGE_LATERAL,
+            from: LANE_CHANGE_FROM,
+            duration: LANE_CHANGE_DURATION,
+        },
+        frames: 180,
+    },
 ];
 
 impl Scenario {
@@ -153,7 +179,10 @@ impl Scenario {
     /// Whether [`crate::CameraRenderer`] keeps up with the frame rate at 640x480: false for the
     /// `driving*` scenarios, whose every frame is a full render (offline replay only).
     pub fn live(&self) -> bool {
-        !matches!(self.kind, Kind::Cruise { .. } | Kind::Approach { .. })
+        !matches!(
+            self.kind,
+            Kind::Cruise { .. } | Kind::Approach { .. } | Kind::LaneChange { .. }
+        )
     }
 
     /// The scene at `frame`. Frames past the end hold the last scene, so a consumer that runs
@@ -182,6 +211,19 @@ impl Scenario {
                 let travelled = speed * seconds(0);
                 Scene::driving(travelled, vec![Obstacle::pedestrian(0.0, from - travelled)])
             }
+            Kind::LaneChange { .. } => {
+                // The pose integrated frame by frame with the motion the vehicle reports, as
+                // flyd moves its flies (an arc: the chord at half the turn).
+                let (mut x, mut z, mut heading) = (0.0_f64, 0.0_f64, 0.0_f64);
+                for k in 0..f {
+                    let (d, turn) = (self.speed_at(k) / FPS, self.yaw_rate_at(k) / FPS);
+                    let mid = heading + 0.5 * turn;
+                    x -= d * mid.sin();
+                    z += d * mid.cos();
+                    heading += turn;
+                }
+                Scene::posed(z, x, heading, vec![])
+            }
         }
     }
 
@@ -192,15 +234,34 @@ impl Scenario {
             return 0.0;
         }
         match self.kind {
-            Kind::Cruise { speed } | Kind::Approach { speed, .. } => speed,
+            Kind::Cruise { speed }
+            | Kind::Approach { speed, .. }
+            | Kind::LaneChange { speed, .. } => speed,
             _ => 0.0,
         }
     }
 
-    /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): the road is straight
-    /// in every scenario (the renderer has no curve yet).
-    pub fn yaw_rate_at(&self, _frame: u32) -> f64 {
-        0.0
+    /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): 0 but in the lane
+    /// change (the road itself is straight). Held over the frame, as the vehicle's motion
+    /// message reports it.
+    pub fn yaw_rate_at(&self, frame: u32) -> f64 {
+        match self.kind {
+            Kind::LaneChange {
+                speed,
+                lateral,
+                from,
+                duration,
+            } if frame < self.frames => {
+                let t = (f64::from(frame) / FPS - from) / duration;
+                if (0.0..1.0).contains(&t) {
+                    let peak = std::f64::consts::TAU * lateral / (speed * duration * duration);
+                    peak * (std::f64::consts::TAU * t).sin()
+                } else {
+                    0.0
+                }
+            }
+            _ => 0.0,
+        }
     }
 
     /// First frame whose scene has an obstacle in the vehicle's lane
@@ -239,6 +300,39 @@ mod tests {
         let s = Scenario::by_name("driving-to-pedestrian").expect("known");
         let travelled: f64 = (0..30).map(|f| s.speed_at(f) / FPS).sum();
         assert!((travelled - s.scene_at(30).travelled).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_lane_change_turns_left_then_right_and_ends_two_metres_left() {
+        let s = Scenario::by_name("drive-30-lane-change").expect("exists");
+        assert!(!s.live());
+        assert_eq!(s.yaw_rate_at(0), 0.0);
+        let rates: Vec<f64> = (0..s.frame_count()).map(|f| s.yaw_rate_at(f)).collect();
+        let peak = rates.iter().cloned().fold(0.0, f64::max);
+        let trough = rates.iter().cloned().fold(0.0, f64::min);
+        assert!(
+            (peak - 0.0603).abs() < 0.001 && (trough + 0.0603).abs() < 0.001,
+            "{peak} {trough}"
+        );
+        // Left first (positive), right after.
+        let first = rates.iter().position(|&r| r != 0.0).expect("turns");
+        assert!(rates[first] > 0.0 && rates[first] < 1e-2);
+        let end = s.scene_at(s.frame_count() - 1);
+        assert!((end.lateral + 2.0).abs() < 0.05, "{end:?}");
+        assert!(end.heading.abs() < 1e-3, "{end:?}");
+        let most = (0..s.frame_count())
+            .map(|f| s.scene_at(f).heading)
+            .fold(0.0, f64::max);
+        assert!(
+            (most.to_degrees() - 5.5).abs() < 0.2,
+            "{}",
+            most.to_degrees()
+        );
+        // At constant speed the road-frame distance is nearly the path's length.
+        assert!(
+            (end.travelled - KMH_30 * 179.0 / FPS).abs() < 0.1,
+            "{end:?}"
+        );
     }
 
     #[test]

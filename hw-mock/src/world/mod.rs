@@ -330,7 +330,13 @@ impl Obstacle {
 
     /// The colour sample of a hit on this obstacle.
     pub(crate) fn shade(&self, ray: &Ray, hit: &Hit) -> Sample {
-        let (_, along, dist) = footprint(hit.point, hit.normal);
+        self.shade_from(ray, hit, NOMINAL_EYE)
+    }
+
+    /// [`Obstacle::shade`], its texture prefiltered and hazed for a viewpoint at `eye` (the
+    /// nominal eye in the frame the ray is in).
+    fn shade_from(&self, ray: &Ray, hit: &Hit, eye: [f64; 3]) -> Sample {
+        let (_, along, dist) = footprint(hit.point, hit.normal, eye);
         let albedo = self.material().albedo(hit, along);
         finish(albedo, hit.normal, dist, ray.at(hit.t)[2], hit.t)
     }
@@ -441,8 +447,8 @@ fn intersect_cylinder(ray: &Ray, cx: f64, cz: f64, r: f64, height: f64) -> Optio
 /// Pixel footprint on a surface seen from the nominal viewpoint: (across, along, distance).
 /// `across` is one pixel's width at that distance; `along` is stretched by the viewing obliquity
 /// (capped at 20x), the size to band-limit isotropic textures against.
-pub(crate) fn footprint(p: [f64; 3], n: [f64; 3]) -> (f64, f64, f64) {
-    let v = sub(NOMINAL_EYE, p);
+pub(crate) fn footprint(p: [f64; 3], n: [f64; 3], eye: [f64; 3]) -> (f64, f64, f64) {
+    let v = sub(eye, p);
     let d = norm(v).max(1e-3);
     let across = d / NOMINAL_FOCAL_PX;
     let cos = (dot(n, v) / d).abs().max(0.05);
@@ -509,12 +515,12 @@ fn sky(dir: [f64; 3]) -> [f64; 3] {
 /// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel. The
 /// vehicle has driven `travelled` metres along the road (the road's texture is fixed to the
 /// ground, so it comes towards the cameras).
-pub(crate) fn ground_or_sky(ray: &Ray, travelled: f64) -> Sample {
+fn ground_or_sky(ray: &Ray, travelled: f64, eye: [f64; 3]) -> Sample {
     let (o, d) = (ray.origin, ray.dir);
     if d[1] < 0.0 && o[1] > 0.0 {
         let t = -o[1] / d[1];
         let p = ray.at(t);
-        let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0]);
+        let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0], eye);
         let albedo = road_albedo(p[0], p[2] + travelled, across, along);
         return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
     }
@@ -535,7 +541,18 @@ pub(crate) fn trace(
     obstacles: &[Obstacle],
     travelled: f64,
 ) -> Sample {
-    let mut best = ground_or_sky(ray, travelled);
+    trace_from(ray, props, obstacles, travelled, NOMINAL_EYE)
+}
+
+/// [`trace`] for a viewpoint at `eye` (in the ray's frame).
+fn trace_from(
+    ray: &Ray,
+    props: &[Obstacle],
+    obstacles: &[Obstacle],
+    travelled: f64,
+    eye: [f64; 3],
+) -> Sample {
+    let mut best = ground_or_sky(ray, travelled, eye);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
     for o in props.iter().chain(obstacles) {
         if let Some(hit) = o.intersect(ray)
@@ -546,9 +563,42 @@ pub(crate) fn trace(
         }
     }
     match best_hit {
-        Some((o, hit)) => o.shade(ray, &hit),
+        Some((o, hit)) => o.shade_from(ray, &hit, eye),
         None => best,
     }
+}
+
+/// The static world (road, sky and `props`, as [`Scene::props`] gives them) along the
+/// vehicle-frame `ray` of `scene`. A vehicle turned or off the centre line sees it through the
+/// ray in the road's frame ([`Scene::world_ray`]); the sample's depth is still the
+/// vehicle-frame z of what it hit.
+pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
+    if !scene.is_posed() {
+        return trace(ray, props, &[], scene.travelled);
+    }
+    let world = scene.world_ray(ray);
+    let mut s = trace_from(&world, props, &[], 0.0, scene.world_point(NOMINAL_EYE));
+    if s.t.is_finite() {
+        s.depth = ray.at(s.t)[2] as f32;
+    }
+    s
+}
+
+/// Colour, depth and distance seen along vehicle-frame `ray` in `scene`: [`background`],
+/// then the nearest of the scene's obstacles (vehicle frame; ties go to the static world).
+pub(crate) fn trace_scene(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
+    if !scene.is_posed() {
+        return trace(ray, props, &scene.obstacles, scene.travelled);
+    }
+    let mut best = background(ray, props, scene);
+    for o in &scene.obstacles {
+        if let Some(hit) = o.intersect(ray)
+            && hit.t < best.t
+        {
+            best = o.shade(ray, &hit);
+        }
+    }
+    best
 }
 
 /// The roadside as seen after the vehicle has driven `travelled` metres: [`roadside`] moved
@@ -648,8 +698,14 @@ pub struct Scene {
     /// Obstacles, in the vehicle frame.
     pub obstacles: Vec<Obstacle>,
     /// Metres the vehicle has driven straight ahead since the start: the road and the roadside
-    /// ([`roadside_at`]) come towards it. 0 for a stationary vehicle.
+    /// ([`roadside_at`]) come towards it. 0 for a stationary vehicle. With a turn, the
+    /// vehicle's position along the road (road frame z).
     pub travelled: f64,
+    /// The vehicle's position across the road, metres right of the centre line (road frame x).
+    pub lateral: f64,
+    /// The vehicle's heading, radians from the road's direction, positive turned left (as a
+    /// positive yaw rate turns it).
+    pub heading: f64,
 }
 
 impl Scene {
@@ -660,7 +716,7 @@ impl Scene {
     pub fn with(obstacles: Vec<Obstacle>) -> Self {
         Self {
             obstacles,
-            travelled: 0.0,
+            ..Self::default()
         }
     }
 
@@ -669,6 +725,62 @@ impl Scene {
         Self {
             obstacles,
             travelled,
+            ..Self::default()
+        }
+    }
+
+    /// The vehicle at road-frame position (`lateral`, `travelled`), turned `heading` radians
+    /// left, with `obstacles` (vehicle frame).
+    pub fn posed(travelled: f64, lateral: f64, heading: f64, obstacles: Vec<Obstacle>) -> Self {
+        Self {
+            obstacles,
+            travelled,
+            lateral,
+            heading,
+        }
+    }
+
+    /// Whether the vehicle is off the centre line or turned: the static world is then traced
+    /// in the road's frame ([`Scene::world_ray`]); otherwise it comes towards the vehicle as
+    /// [`roadside_at`] (bit for bit the renders of a straight drive).
+    pub fn is_posed(&self) -> bool {
+        self.heading != 0.0 || self.lateral != 0.0
+    }
+
+    /// The roadside in the frame its rays are traced in: the road's for a posed vehicle, the
+    /// vehicle's otherwise.
+    pub fn props(&self) -> Vec<Obstacle> {
+        if self.is_posed() {
+            roadside()
+        } else {
+            roadside_at(self.travelled)
+        }
+    }
+
+    /// A vehicle-frame point in the road's frame.
+    pub fn world_point(&self, p: [f64; 3]) -> [f64; 3] {
+        let (s, c) = self.heading.sin_cos();
+        [
+            self.lateral + p[0] * c - p[2] * s,
+            p[1],
+            self.travelled + p[0] * s + p[2] * c,
+        ]
+    }
+
+    /// A road-frame point in the vehicle's frame (the inverse of [`Scene::world_point`]).
+    pub fn vehicle_point(&self, w: [f64; 3]) -> [f64; 3] {
+        let (s, c) = self.heading.sin_cos();
+        let (x, z) = (w[0] - self.lateral, w[2] - self.travelled);
+        [x * c + z * s, w[1], z * c - x * s]
+    }
+
+    /// A vehicle-frame ray in the road's frame.
+    pub fn world_ray(&self, r: &Ray) -> Ray {
+        let (s, c) = self.heading.sin_cos();
+        let d = r.dir;
+        Ray {
+            origin: self.world_point(r.origin),
+            dir: [d[0] * c - d[2] * s, d[1], d[0] * s + d[2] * c],
         }
     }
 
