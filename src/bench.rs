@@ -31,6 +31,8 @@ pub struct GenerationBench {
     pub isa: Option<Isa>,
     /// The perception stages timed after each generation.
     pub perception: PerceptionConfig,
+    /// The engine's parameters (`flies` replaces theirs).
+    pub engine: EngineParams,
     /// A hw-mock scenario whose frames are played in order instead (its first
     /// [`SCENARIO_FRAMES`], looped), the flies moved with its own motion between frames
     /// when `predict`.
@@ -185,7 +187,7 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
     }
     let params = EngineParams {
         flies: cfg.flies,
-        ..EngineParams::default()
+        ..cfg.engine.clone()
     };
     let warmup = 50;
     let mut perception = Perception::new(mock.rig(), params, cfg.perception)?.with_warmup(warmup);

@@ -62,7 +62,7 @@ struct BenchArgs {
     /// has; every one gives the same population).
     #[arg(long, value_parser = parse_isa)]
     isa: Option<flyd_core::isa::Isa>,
-    /// Take [perception] from this daemon configuration (default: the built-in defaults).
+    /// Take [engine] (but its seed) and [perception] from this daemon configuration (default: the built-in defaults).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Play this hw-mock scenario's first 60 frames in order (e.g. `driving`) instead of two
@@ -110,8 +110,8 @@ struct ReplayArgs {
     seed: Option<u64>,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
     /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian, drive-30, drive-40,
-    /// drive-30-to-pedestrian, drive-40-to-pedestrian (the moving ones decided at their own
-    /// speed, the flies moved with it).
+    /// drive-30-to-pedestrian, drive-40-to-pedestrian, drive-30-lane-change (the moving ones
+    /// decided at their own speed, the flies moved with it).
     #[arg(long)]
     scenario: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
@@ -261,6 +261,8 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
     }
     // The calibration's row correction of the right image (a scenario's rig needs none).
     let mut right_row_shift = 0.0;
+    // A scenario's rig is hw-mock's, not rectified: the replay says so and measures nothing.
+    let mut measure_rows = true;
     let (mut feed, generations, per_frame, fps): (Box<dyn FrameFeed>, u64, u64, f64) = if let Some(
         name,
     ) =
@@ -275,9 +277,10 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         let Some(calib) = &args.calib else {
             bail!("--sequence needs --calib");
         };
-        let (feed, cal) = SequenceFeed::open(dir, calib)?;
+        let (feed, cal) = SequenceFeed::open(dir, calib, args.fps)?;
         cal.apply_to(&mut params);
         right_row_shift = cal.right_row_offset_px;
+        measure_rows = cal.measure_rows;
         let per_frame = args
             .generations_per_frame
             .unwrap_or_else(|| replay::daemon_generations_per_frame(&config.evolution, args.fps))
@@ -293,6 +296,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         let (feed, cal) = PairFeed::load(left, right, calib)?;
         cal.apply_to(&mut params);
         right_row_shift = cal.right_row_offset_px;
+        measure_rows = cal.measure_rows;
         // A still camera filming the pair at 30 fps, 3 generations a frame (no change, so
         // no burst): what the daemon sees standing in front of that scene.
         let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
@@ -329,6 +333,7 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         sensor: config.sensor,
         warmup_generations: config.evolution.warmup_generations,
         right_row_shift,
+        measure_rows,
     };
     let run = replay::run(feed.as_mut(), settings).context("replay")?;
     if let Some(recorder) = recorder {
@@ -451,6 +456,7 @@ fn bench_command(args: BenchArgs) -> Result<()> {
     if let Some(runs) = args.end_to_end {
         return bench_end_to_end_command(runs, args.json);
     }
+    let config = args.config.as_deref().map(config::check).transpose()?;
     let report = flyd::bench::generations(&flyd::bench::GenerationBench {
         flies: args.flies,
         width: args.width,
@@ -458,10 +464,14 @@ fn bench_command(args: BenchArgs) -> Result<()> {
         generations: args.generations,
         generations_per_frame: args.generations_per_frame,
         isa: args.isa,
-        perception: match &args.config {
-            Some(path) => config::check(path)?.perception,
-            None => flyd_core::perception::PerceptionConfig::default(),
-        },
+        perception: config.as_ref().map(|c| c.perception).unwrap_or_default(),
+        // The seed stays the benchmark's: the same population whatever the file says.
+        engine: config
+            .as_ref()
+            .map_or_else(EngineParams::default, |c| EngineParams {
+                seed: EngineParams::default().seed,
+                ..c.engine.clone()
+            }),
         scenario: args.scenario.clone(),
         predict: !args.no_predict,
     })?;

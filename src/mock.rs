@@ -219,6 +219,29 @@ mod tests {
         assert!(matches!(mock_rig(8, 8), Err(CameraError::TooSmall { .. })));
     }
 
+    /// Both cameras see the whole corridor from 2.2 m on (its sides set the bound): the
+    /// pedestrians of the scenarios, 3.7 m and farther, are judged from their first sighting.
+    #[test]
+    fn the_mock_rig_judges_obstacles_from_about_two_metres() {
+        use flyd_core::perception::{ObstacleConfig, judgeable_distance};
+        let rig = mock_rig(640, 480).expect("valid");
+        let d = judgeable_distance(&rig, &ObstacleConfig::default(), 1.0);
+        assert!((2.0..2.6).contains(&d), "{d}");
+        // Half the width: the same field of view, the same distance within a step.
+        let small = judgeable_distance(
+            &mock_rig(320, 240).expect("valid"),
+            &ObstacleConfig::default(),
+            1.0,
+        );
+        assert!((small - d).abs() < 0.11, "{small} vs {d}");
+        // A wider corridor is seen whole only farther away.
+        let wide = ObstacleConfig {
+            corridor_half_width: 2.0,
+            ..ObstacleConfig::default()
+        };
+        assert!(judgeable_distance(&rig, &wide, 1.0) > d + 1.0);
+    }
+
     #[test]
     fn mock_stereo_can_move_to_a_capture_thread() {
         fn send<T: Send>() {}

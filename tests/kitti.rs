@@ -287,60 +287,86 @@ fn read_estimates(trace: &Path) -> Vec<(u64, Option<f64>)> {
         .collect()
 }
 
+/// Seeds the sequence is replayed with: which seeds find the car on its one frame in the
+/// corridor varies (measured: 6 of seeds 1-8, 7 of 1-10; docs/perception.md).
+const SEQUENCE_SEEDS: u64 = 8;
+
 #[test]
 fn a_car_crossing_into_the_corridor_is_seen_at_its_distance() {
     let seq = fixtures().join("kitti_raw_2011_09_26_seq12");
-    let out = tempfile::tempdir().expect("tempdir");
-    let mut args: Vec<std::ffi::OsString> = ["replay", "--speed", "30"].map(Into::into).into();
-    for (flag, path) in [
-        ("--sequence", seq.clone()),
-        ("--calib", seq.join("rig.toml")),
-        ("--out", out.path().to_path_buf()),
-    ] {
-        args.extend([flag.into(), path.into()]);
+    let mut seen_by = 0;
+    for seed in 1..=SEQUENCE_SEEDS {
+        let out = tempfile::tempdir().expect("tempdir");
+        let mut args: Vec<std::ffi::OsString> =
+            ["replay", "--speed", "30", "--seed"].map(Into::into).into();
+        args.push(seed.to_string().into());
+        for (flag, path) in [
+            ("--sequence", seq.clone()),
+            ("--calib", seq.join("rig.toml")),
+            ("--out", out.path().to_path_buf()),
+        ] {
+            args.extend([flag.into(), path.into()]);
+        }
+        let s = util::flyd_json(args);
+        let frames = s["per_frame"].as_array().expect("per_frame");
+        assert_eq!(frames.len(), 12);
+        // A real sequence: no frame uniform, frozen or mismatched.
+        assert_eq!(
+            s["sensor_fault_frames"], 0,
+            "a sensor fault on the KITTI sequence"
+        );
+        for f in frames {
+            println!(
+                "seed {seed} frame {}: {} ({}), obstacle {}",
+                f["frame"], f["command"], f["reason"], f["obstacle"]
+            );
+            assert_ne!(f["command"], "STOP", "seed {seed} frame {}", f["frame"]);
+            let confirmed = f["obstacle"]["confirmed"].as_bool().unwrap_or(false);
+            let d = f["obstacle"]["distance"].as_f64().unwrap_or(f64::INFINITY);
+            assert!(
+                !confirmed || d >= 20.0,
+                "seed {seed} frame {}: confirmed at {d} m",
+                f["frame"]
+            );
+        }
+        let estimates = read_estimates(&out.path().join("trace.csv"));
+        // Frames 0-10: the cars cross beside the corridor (the MPV 1.7 m and more to the
+        // right, the yellow car left of -1.2 m until frame 11): no estimate sees an obstacle
+        // between the judgeable distance (4.8 m: nearer, the cameras barely share pixels, and
+        // what matches there is confirmed only when seen coming) and 20 m.
+        let judgeable = s["judgeable_distance"]
+            .as_f64()
+            .expect("judgeable distance");
+        assert!((4.5..5.2).contains(&judgeable), "{judgeable}");
+        for &(f, d) in estimates.iter().filter(|(f, _)| *f < 11) {
+            assert!(
+                d.is_none_or(|d| !(judgeable..20.0).contains(&d)),
+                "seed {seed} frame {f}: an obstacle at {d:?} m"
+            );
+        }
+        // Frame 11: the yellow car's front is in the corridor, 13.8 m ahead, seen by some of
+        // the frame's estimates on most seeds (the rest see the island's sign pole at ~31 m,
+        // or nothing); the sequence ends there, so it is not confirmed (two frames are
+        // needed).
+        let car: Vec<f64> = estimates
+            .iter()
+            .filter(|(f, _)| *f == 11)
+            .filter_map(|&(_, d)| d)
+            .filter(|&d| d < 20.0)
+            .collect();
+        println!("seed {seed} frame 11: the car seen at {car:?} m");
+        for &d in &car {
+            assert!(
+                (d - 13.8).abs() <= 0.1 * 13.8,
+                "seed {seed}: the yellow car on frame 11 seen at {d:.1} m"
+            );
+        }
+        seen_by += usize::from(!car.is_empty());
     }
-    let s = util::flyd_json(args);
-    let frames = s["per_frame"].as_array().expect("per_frame");
-    assert_eq!(frames.len(), 12);
-    // A real sequence: no frame uniform, frozen or mismatched.
-    assert_eq!(
-        s["sensor_fault_frames"], 0,
-        "a sensor fault on the KITTI sequence"
+    assert!(
+        seen_by * 2 > SEQUENCE_SEEDS as usize,
+        "the car on frame 11 seen on {seen_by} of {SEQUENCE_SEEDS} seeds"
     );
-    for f in frames {
-        println!(
-            "frame {}: {} ({}), obstacle {}",
-            f["frame"], f["command"], f["reason"], f["obstacle"]
-        );
-        assert_ne!(f["command"], "STOP", "frame {}", f["frame"]);
-    }
-    let estimates = read_estimates(&out.path().join("trace.csv"));
-    // Frames 0-10: the cars cross beside the corridor (the MPV 1.7 m and more to the right,
-    // the yellow car left of -1.2 m until frame 11): no estimate sees an obstacle nearer than
-    // 20 m.
-    for &(f, d) in estimates.iter().filter(|(f, _)| *f < 11) {
-        assert!(
-            d.is_none_or(|d| d >= 20.0),
-            "frame {f}: an obstacle at {d:?} m"
-        );
-    }
-    // Frame 11: the yellow car's front is in the corridor, 13.8 m ahead. Seen by some of the
-    // frame's estimates (8 of 21 measured with the rig's row correction, 13.6-13.9 m; 5 of
-    // 21 without); the sequence ends there, so it is not confirmed (two frames are needed):
-    // docs/perception.md.
-    let car: Vec<f64> = estimates
-        .iter()
-        .filter(|(f, _)| *f == 11)
-        .filter_map(|&(_, d)| d)
-        .collect();
-    println!("frame 11: the car seen at {car:?} m");
-    assert!(!car.is_empty(), "the car on frame 11 was never seen");
-    for d in car {
-        assert!(
-            (d - 13.8).abs() <= 0.1 * 13.8,
-            "the yellow car on frame 11 seen at {d:.1} m"
-        );
-    }
 }
 
 /// `flyd replay` of one still pair with the defaults (no `--generations`) at 30 km/h, seed 1:

@@ -134,19 +134,19 @@ fn driving_towards_a_pedestrian_ends_in_a_stop() {
     assert!(nearest > 0.0 && nearest < 14.9, "{alarms}");
 }
 
-/// At 30 km/h towards a pedestrian, the scenario's own speed (what its VCU would send), the
-/// flies moved with it between frames: the first STOP (PERCEPTION) comes while the pedestrian
-/// is still beyond the stopping distance at that speed (0.5 s, 4 m/s^2, 2 m: 14.85 m), and
-/// the first SLOW beyond that. Measured over seeds 1-10: STOP at 15.0-15.6 m
+/// At 30 and 40 km/h towards a pedestrian, the scenario's own speed (what its VCU would
+/// send), the flies moved with it between frames: the first STOP (PERCEPTION) comes while the
+/// pedestrian is still beyond the stopping distance at that speed (0.5 s, 4 m/s^2, 2 m:
+/// 14.85 m and 23.0 m), the first SLOW not after it; the decision judged the obstacle at
+/// its near bound. Measured over seeds 1-10: STOP at 15.8-16.4 m and 24.1-28.2 m
 /// (docs/perception.md).
-#[test]
-fn driving_at_30_kmh_towards_a_pedestrian_stops_before_the_stopping_distance() {
-    let out = std::env::temp_dir().join(format!("flyd-approach-{}", std::process::id()));
+fn approach(scenario: &str, from: f64, kmh: f64, stopping: f64, slow_ahead: f64) {
+    let out = std::env::temp_dir().join(format!("flyd-{scenario}-{}", std::process::id()));
     let out_dir = out.display().to_string();
     let summary = util::flyd_json([
         "replay",
         "--scenario",
-        "drive-30-to-pedestrian",
+        scenario,
         "--seed",
         "1",
         "--out",
@@ -165,25 +165,54 @@ fn driving_at_30_kmh_towards_a_pedestrian_stops_before_the_stopping_distance() {
         col("reason"),
         col("speed_kmh"),
     );
+    let (distance_col, near_col) = (col("obstacle_distance"), col("obstacle_near"));
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     let first = |what: &[&str]| {
         rows.iter()
             .find(|r| what.contains(&r[command]) && r[reason] == "PERCEPTION")
             .map(|r| r[frame].parse::<f64>().expect("frame"))
     };
-    // The pedestrian's body axis, 40 m ahead at frame 0, at 30 fps.
-    let distance = |f: f64| 40.0 - 30.0 / 3.6 * f / 30.0;
+    // The pedestrian's body axis, `from` metres ahead at frame 0, at 30 fps.
+    let distance = |f: f64| from - kmh / 3.6 * f / 30.0;
     let stop = first(&["STOP"]).map(distance).expect("a STOP");
     let slow = first(&["SLOW", "STOP"]).map(distance).expect("a SLOW");
     assert!(
         rows.iter()
-            .all(|r| (r[speed].parse::<f64>().expect("speed") - 30.0).abs() < 0.01),
-        "decided at the scenario's 30 km/h"
+            .all(|r| (r[speed].parse::<f64>().expect("speed") - kmh).abs() < 0.01),
+        "decided at the scenario's {kmh} km/h"
     );
-    println!("drive-30-to-pedestrian seed 1: first SLOW at {slow:.2} m, first STOP at {stop:.2} m");
+    // The near bound: half a pixel more disparity on the mock rig (f B = 0.8125 * 640 * 0.3).
+    let f_b = 0.8125 * 640.0 * 0.3;
+    let mut obstacles = 0;
+    for r in rows.iter().filter(|r| !r[distance_col].is_empty()) {
+        let (d, near): (f64, f64) = (
+            r[distance_col].parse().expect("distance"),
+            r[near_col].parse().expect("near"),
+        );
+        let expected = f_b / (f_b / d + 0.5);
+        assert!(
+            (near - expected).abs() < 2e-3,
+            "near {near} for {d} m, expected {expected:.3}"
+        );
+        obstacles += 1;
+    }
+    assert!(obstacles > 0, "no obstacle in the trace");
+    println!("{scenario} seed 1: first SLOW at {slow:.2} m, first STOP at {stop:.2} m");
     assert!(
-        stop > 14.85,
-        "first STOP at {stop:.2} m, inside the stopping distance"
+        stop > stopping,
+        "first STOP at {stop:.2} m, inside the stopping distance {stopping} m"
     );
-    assert!(slow > stop + 5.0, "first SLOW at {slow:.2} m");
+    assert!(slow >= stop + slow_ahead, "first SLOW at {slow:.2} m");
+}
+
+#[test]
+fn driving_at_30_kmh_towards_a_pedestrian_stops_before_the_stopping_distance() {
+    approach("drive-30-to-pedestrian", 40.0, 30.0, 14.85, 5.0);
+}
+
+#[test]
+fn driving_at_40_kmh_towards_a_pedestrian_stops_before_the_stopping_distance() {
+    // Seen first at 25-34 m (seeds 1-10), inside the SLOW distance (48.7 m): SLOW and STOP
+    // may come together.
+    approach("drive-40-to-pedestrian", 50.0, 40.0, 23.0, 0.0);
 }

@@ -486,6 +486,7 @@ impl DaemonConfig {
             depth_range: None,
             has_road: true,
             right_row_offset_px: 0.0,
+            measure_rows: true,
         };
         let cal = match &self.calibration {
             CalibrationSource::Rig(rig) => built((**rig).clone()),

@@ -252,6 +252,11 @@ pub fn run(
     }
     let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
+    tracing::info!(
+        judgeable_m = perception.judgeable_distance(),
+        "perception: both cameras see the whole corridor from this distance on; a nearer \
+         obstacle is confirmed only when seen coming from beyond it"
+    );
     let decider = Decider::new(config.decision)?;
     let recording = start_recording(config, &rig)?;
     let recorder = recording.as_ref().map(|r| r.recorder.clone());

@@ -62,9 +62,10 @@ impl Snapshot {
         self.left.timestamp.min(self.right.timestamp)
     }
 
-    /// The confirmed obstacle's distance, metres: what the decision acts on.
+    /// Where the decision judges the confirmed obstacle, metres: its near bound
+    /// ([`flyd_core::perception::Obstacle::near`]).
     pub fn confirmed_distance(&self) -> Option<f64> {
-        self.tracked.confirmed().map(|o| o.distance)
+        self.tracked.decision_distance()
     }
 
     /// FLYD_Obstacle for this snapshot.

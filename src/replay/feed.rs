@@ -42,6 +42,10 @@ pub trait FrameFeed {
     fn motion(&self, _index: u64) -> Option<VehicleMotion> {
         None
     }
+    /// Where [`FrameFeed::motion`] comes from, when the feed knows it.
+    fn motion_source(&self) -> Option<String> {
+        None
+    }
 }
 
 /// One stereo pair, evaluated again and again (the paper's setting): one frame, or the same
@@ -166,6 +170,10 @@ impl FrameFeed for ScenarioFeed {
         self.first_obstacle
     }
 
+    fn motion_source(&self) -> Option<String> {
+        Some(format!("scenario {}", self.mock.scenario().name()))
+    }
+
     fn motion(&self, index: u64) -> Option<VehicleMotion> {
         let s = self.mock.scenario();
         let f = u32::try_from(index).unwrap_or(u32::MAX);
@@ -207,15 +215,26 @@ pub struct SequenceFeed {
     rig: StereoRig,
     calibration: PathBuf,
     pairs: Vec<(PathBuf, PathBuf)>,
+    /// The vehicle's motion from each frame to the next, from the folder's `poses.txt`.
+    motion: Option<(PathBuf, Vec<VehicleMotion>)>,
 }
+
+/// The poses file a sequence folder may hold ([`super::poses`]).
+pub const SEQUENCE_POSES: &str = "poses.txt";
 
 /// The layouts [`SequenceFeed::open`] knows, as (left, right) folders.
 pub const SEQUENCE_LAYOUTS: [(&str, &str); 2] =
     [("left", "right"), ("image_02/data", "image_03/data")];
 
 impl SequenceFeed {
-    /// The sequence in `dir`, whose pairs `calibration` describes (every image its size).
-    pub fn open(dir: &Path, calibration: &Path) -> Result<(Self, Calibration), ReplayError> {
+    /// The sequence in `dir`, whose pairs `calibration` describes (every image its size),
+    /// filmed at `fps`; with the vehicle's motion when `dir` holds a `poses.txt` (KITTI
+    /// odometry: one pose a frame).
+    pub fn open(
+        dir: &Path,
+        calibration: &Path,
+        fps: f64,
+    ) -> Result<(Self, Calibration), ReplayError> {
         let cal = flyd_core::calib::load(calibration)?;
         let Some((l, r)) = SEQUENCE_LAYOUTS
             .iter()
@@ -253,10 +272,17 @@ impl SequenceFeed {
                 dir: l.display().to_string(),
             });
         }
+        let poses = dir.join(SEQUENCE_POSES);
+        let motion = if poses.is_file() {
+            Some((poses.clone(), motion_from_poses(&poses, pairs.len(), fps)?))
+        } else {
+            None
+        };
         let feed = Self {
             rig: cal.rig.clone(),
             calibration: calibration.to_path_buf(),
             pairs,
+            motion,
         };
         Ok((feed, cal))
     }
@@ -293,6 +319,18 @@ impl FrameFeed for SequenceFeed {
         Ok(())
     }
 
+    fn motion(&self, index: u64) -> Option<VehicleMotion> {
+        let (_, motion) = self.motion.as_ref()?;
+        let i = usize::try_from(index).unwrap_or(usize::MAX);
+        motion.get(i).or(motion.last()).copied()
+    }
+
+    fn motion_source(&self) -> Option<String> {
+        self.motion
+            .as_ref()
+            .map(|(path, _)| format!("poses {}", path.display()))
+    }
+
     fn frame_name(&self, index: u64) -> String {
         usize::try_from(index)
             .ok()
@@ -300,6 +338,37 @@ impl FrameFeed for SequenceFeed {
             .and_then(|(l, _)| l.file_name())
             .map_or_else(|| index.to_string(), |n| n.to_string_lossy().into_owned())
     }
+}
+
+/// The motion from each of `frames` frames to the next (the last repeats the one before),
+/// from the poses in `path`, `fps` frames a second.
+fn motion_from_poses(
+    path: &Path,
+    frames: usize,
+    fps: f64,
+) -> Result<Vec<VehicleMotion>, ReplayError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReplayError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let poses = super::poses::parse(&text).map_err(|source| ReplayError::Poses {
+        path: path.display().to_string(),
+        source,
+    })?;
+    if poses.len() < frames {
+        return Err(ReplayError::PosesCount {
+            path: path.display().to_string(),
+            poses: poses.len(),
+            frames,
+        });
+    }
+    let dt = 1.0 / fps;
+    let mut motion: Vec<VehicleMotion> = poses[..frames]
+        .windows(2)
+        .map(|w| super::poses::motion_between(&w[0], &w[1], dt))
+        .collect();
+    motion.push(motion.last().copied().unwrap_or(VehicleMotion::STANDSTILL));
+    Ok(motion)
 }
 
 /// An image of another size than its camera: an error naming both.

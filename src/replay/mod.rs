@@ -27,6 +27,7 @@
 
 pub mod feed;
 pub mod output;
+pub mod poses;
 pub mod recorded;
 pub mod summary;
 
@@ -96,6 +97,18 @@ pub enum ReplayError {
     SequenceUnpaired { file: String, dir: String },
     #[error("{dir} holds no PNG or JPEG image")]
     SequenceEmpty { dir: String },
+    #[error("{path}: the vehicle's poses")]
+    Poses {
+        path: String,
+        #[source]
+        source: poses::PosesError,
+    },
+    #[error("{path}: {poses} poses for {frames} frames (one a frame, from the first)")]
+    PosesCount {
+        path: String,
+        poses: usize,
+        frames: usize,
+    },
     #[error("hw-mock")]
     Mock(#[from] MockError),
     #[error("frame")]
@@ -152,6 +165,68 @@ pub struct Settings {
     /// The calibration's row correction of the right image
     /// (`rectification.right_row_offset_px`).
     pub right_row_shift: f64,
+    /// Measure the residual of a rectified pair's rows on the first frame and correct it
+    /// (`rectification.measure`; a rig that is not rectified is not measured).
+    pub measure_rows: bool,
+}
+
+/// The right image's row correction a replay applied: the calibration's, or the calibration's
+/// plus the residual measured on the first frame (`flyd_core::rectification`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct RowCorrection {
+    /// The calibration's (`rectification.right_row_offset_px`).
+    pub prior_px: f64,
+    /// What the first frame's corners measured on top of it, when they did.
+    pub measured_px: Option<f64>,
+    /// Corners matched for that measure.
+    pub corners: usize,
+    /// The correction every right frame got.
+    pub applied_px: f64,
+    /// "measured": the prior plus the measure; "rig": the prior (why: `refused`).
+    pub source: &'static str,
+    /// Why the measure was not applied: "off" (`rectification.measure = false`), "not
+    /// rectified", "too few corners", "beyond the range" (at the edge of the offsets tried,
+    /// or the sum beyond `MAX_RIGHT_ROW_OFFSET`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refused: Option<&'static str>,
+}
+
+impl RowCorrection {
+    /// The correction for a right image calibrated at `prior` px, given what the first frame
+    /// measured (`None`: too few corners) and whether measuring is on (`measure`) for this
+    /// rig (`rectified`).
+    pub fn decide(prior: f64, measure: bool, rectified: bool, measured: Option<RowOffset>) -> Self {
+        let rig = |refused, measured: Option<RowOffset>| Self {
+            prior_px: prior,
+            measured_px: measured.map(|m| m.residual_px),
+            corners: measured.map_or(0, |m| m.corners),
+            applied_px: prior,
+            source: "rig",
+            refused: Some(refused),
+        };
+        if !measure {
+            return rig("off", None);
+        }
+        if !rectified {
+            return rig("not rectified", None);
+        }
+        let Some(m) = measured else {
+            return rig("too few corners", None);
+        };
+        let sum = prior + m.residual_px;
+        if m.at_range_edge || !sum.is_finite() || sum.abs() > flyd_core::calib::MAX_RIGHT_ROW_OFFSET
+        {
+            return rig("beyond the range", Some(m));
+        }
+        Self {
+            prior_px: prior,
+            measured_px: Some(m.residual_px),
+            corners: m.corners,
+            applied_px: sum,
+            source: "measured",
+            refused: None,
+        }
+    }
 }
 
 /// Generations the daemon runs per frame of a video at `fps` that changes every frame (a
@@ -207,9 +282,13 @@ pub struct Replay {
     pub frames: u64,
     /// The feed knew its motion.
     pub moving_feed: bool,
+    /// Where that motion came from (a scenario, a sequence's poses).
+    pub motion_source: Option<String>,
     /// The right image's rows as measured on the last frame's fittest unique flies, after
     /// the calibration's correction ([`flyd_core::rectification`]).
     pub row_offset: Option<RowOffset>,
+    /// The correction applied (the calibration's, or measured on the first frame).
+    pub row_correction: Option<RowCorrection>,
 }
 
 impl Replay {
@@ -234,7 +313,8 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
     // Taken out: the recording ends with this run (its writer waits for every handle).
     let recorder = settings.record.take();
-    let image = |w, h| PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
+    let retain = recorder.is_some();
+    let image = move |w, h| PreparedImage::new(w, h).map(|i| i.retain_pixels_if(retain));
     let right = image(rw, rh)?.with_row_shift(settings.right_row_shift);
     let mut frame = StereoFrame::new(image(w, h)?, right, 0);
     let mut recording = recorder.map(ReplayRecording::new).transpose()?;
@@ -247,6 +327,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     };
     let mut trace = Vec::with_capacity(usize::try_from(settings.generations).unwrap_or(0));
     let mut index = None;
+    let mut row_correction = None;
     let mut checks = [ImageCheck::new(w, h), ImageCheck::new(rw, rh)];
     let mut monitor = SensorMonitor::new(settings.sensor);
     let (mut health, mut sensor) = ([ImageHealth::default(); 2], SensorVerdict::default());
@@ -263,6 +344,29 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 predicted = Some((motion, dt));
             }
             feed.load(wanted, &mut frame, &mut left)?;
+            if index.is_none() {
+                // The first frame: the rows measured and corrected before any fly sees it.
+                let measured = (settings.measure_rows && feed.rig().is_rectified())
+                    .then(|| {
+                        residual_row_offset(
+                            &frame,
+                            max_disparity(feed.rig(), settings.params.min_depth),
+                        )
+                    })
+                    .flatten();
+                let decided = RowCorrection::decide(
+                    settings.right_row_shift,
+                    settings.measure_rows,
+                    feed.rig().is_rectified(),
+                    measured,
+                );
+                if decided.applied_px != settings.right_row_shift {
+                    frame.right = image(rw, rh)?.with_row_shift(decided.applied_px);
+                    feed.load(wanted, &mut frame, &mut left)?;
+                    settings.right_row_shift = decided.applied_px;
+                }
+                row_correction = Some(decided);
+            }
             frame.id = wanted;
             index = Some(wanted);
             health = [
@@ -289,7 +393,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         let trusted = report.stats.generation > settings.warmup_generations;
         let input = DecisionInput {
             global_warning: report.stats.global_warning,
-            obstacle: report.tracked.confirmed().map(|o| o.distance),
+            obstacle: report.tracked.decision_distance(),
             faults: if sensor.faults.is_empty() {
                 FaultBits::empty()
             } else {
@@ -343,7 +447,9 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         left,
         frames: index.map_or(0, |i| i + 1),
         moving_feed: feed.motion(0).is_some(),
+        motion_source: feed.motion_source(),
         row_offset,
+        row_correction,
     })
 }
 

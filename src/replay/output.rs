@@ -77,8 +77,8 @@ fn write_road_points(replay: &Replay, path: &Path) -> Result<(), ReplayError> {
 /// The header of `trace.csv` and `frames.csv`.
 pub const TRACE_HEADER: &str = "generation,frame,frame_name,new_frame,time_s,global_warning,danger,\
 visible,road_source,road_height,road_pitch_deg,road_roll_deg,road_inliers,corridor_flies,\
-unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_lateral,obstacle_bottom,\
-obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
+unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_near,obstacle_lateral,\
+obstacle_bottom,obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
 left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh";
 
 /// One row of `trace.csv` (no newline).
@@ -89,7 +89,7 @@ fn trace_line(r: &TraceRow) -> String {
     let [l, rh] = r.health;
     let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
-        "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
+        "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
          {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2}",
         r.stats.generation,
         r.frame,
@@ -109,6 +109,7 @@ fn trace_line(r: &TraceRow) -> String {
         o.is_some() as u8,
         r.tracked.confirmed as u8,
         num(o.map(|o| o.distance)),
+        num(o.map(|o| o.near)),
         num(o.map(|o| o.lateral)),
         num(o.map(|o| o.bottom)),
         num(o.map(|o| o.top)),

@@ -366,7 +366,7 @@ fn step(
     }
     let outcome = Outcome {
         global_warning: report.stats.global_warning,
-        obstacle: report.tracked.confirmed().map(|o| o.distance),
+        obstacle: report.tracked.decision_distance(),
         matched: report.stats.matched,
         road: report.road,
         tracked: report.tracked,

@@ -143,6 +143,12 @@ pub struct Summary {
     pub speed_source: &'static str,
     /// The flies were moved with the feed's motion between frames.
     pub predict_flies: bool,
+    /// Where the feed's motion came from: "scenario NAME", "poses FILE" (a sequence's KITTI
+    /// poses), or null (none: the decision's speed is `speed_kmh`, the flies stay).
+    pub motion_source: Option<String>,
+    /// The nearest distance an obstacle is judged from one sighting, metres (nearer: only one
+    /// seen coming; `flyd_core::perception::judgeable_distance`).
+    pub judgeable_distance: f64,
     /// The state after the last generation.
     #[serde(flatten)]
     pub last: FrameReport,
@@ -157,6 +163,8 @@ pub struct Summary {
     pub reaction: Option<Reaction>,
     /// The right image's row correction, and what is left of the rows' misalignment.
     pub row_offset: RowOffsetReport,
+    /// How that correction was chosen: the rig's, or measured on the first frame.
+    pub row_correction: Option<super::RowCorrection>,
     /// The state at the last generation of each frame, when there is more than one frame.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub per_frame: Vec<FrameReport>,
@@ -219,6 +227,8 @@ impl Summary {
                 "assumed"
             },
             predict_flies: replay.settings.predict && replay.moving_feed,
+            motion_source: replay.motion_source.clone(),
+            judgeable_distance: replay.perception.judgeable_distance(),
             last,
             warmup_generations: replay.settings.warmup_generations,
             alarms: Alarms::of(&replay.trace, replay.settings.warmup_generations),
@@ -231,6 +241,7 @@ impl Summary {
                 applied_px: replay.settings.right_row_shift,
                 measured: replay.row_offset,
             },
+            row_correction: replay.row_correction,
             per_frame,
         }
     }

@@ -69,6 +69,10 @@ pub struct Calibration {
     /// rig file; 0 for the other formats): what [`crate::frame::PreparedImage::with_row_shift`]
     /// corrects the right image by.
     pub right_row_offset_px: f64,
+    /// Whether flyd measures the residual of a rectified pair's rows itself and corrects it
+    /// (`rectification.measure` of a rig file, default true; the other formats: true). Only a
+    /// rectified rig is measured ([`crate::geometry::StereoRig::is_rectified`]).
+    pub measure_rows: bool,
 }
 
 impl Calibration {

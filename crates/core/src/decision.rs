@@ -5,7 +5,8 @@
 //!
 //! # What the command is decided on ([`DecisionMode`])
 //! - **`obstacle`** (default): the confirmed nearest obstacle in the corridor
-//!   ([`crate::perception`]), at distance `d` metres, and the vehicle's speed `v` (m/s). A
+//!   ([`crate::perception`]), at distance `d` metres (its near bound,
+//!   [`crate::perception::Obstacle::near`]), and the vehicle's speed `v` (m/s). A
 //!   command's *reach* is the distance the vehicle needs to stop with that command's
 //!   deceleration: `v reaction_time + v^2 / (2 decel) + margin` (Autoware's AEB and RSS use the
 //!   same form). The obstacle is taken where it will be when the next evidence can change the

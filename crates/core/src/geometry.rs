@@ -338,6 +338,23 @@ pub struct StereoRig {
 }
 
 impl StereoRig {
+    /// Whether the rig is rectified: no distortion, the same orientation and vertical
+    /// intrinsics, the right camera along the left one's x axis. Only then is a scene point on
+    /// the same row of both images (what [`crate::rectification`] measures the residual of).
+    pub fn is_rectified(&self) -> bool {
+        let (l, r) = (&self.left, &self.right);
+        let (kl, kr) = (l.intrinsics(), r.intrinsics());
+        let along = l.rotation * (r.centre - l.centre);
+        let b = along.norm().max(1e-9);
+        l.distortion().is_zero()
+            && r.distortion().is_zero()
+            && (l.rotation.matrix() - r.rotation.matrix()).abs().max() < 1e-6
+            && (kl.fy - kr.fy).abs() < 1e-6 * kl.fy.abs().max(1.0)
+            && (kl.cy - kr.cy).abs() < 1e-3
+            && along.y.abs() < 1e-6 * b
+            && along.z.abs() < 1e-6 * b
+    }
+
     /// Distance between the optical centres, metres.
     pub fn baseline(&self) -> f64 {
         (self.right.centre - self.left.centre).norm()

@@ -229,6 +229,7 @@ pub fn parse_kitti(
         depth_range: None,
         has_road: true,
         right_row_offset_px: 0.0,
+        measure_rows: true,
     })
 }
 

@@ -241,6 +241,7 @@ pub fn parse_middlebury(text: &str, origin: &Path) -> Result<Calibration, CalibE
         depth_range: Some(depth_range),
         has_road: false,
         right_row_offset_px: 0.0,
+        measure_rows: true,
     })
 }
 

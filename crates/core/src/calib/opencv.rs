@@ -119,6 +119,7 @@ pub fn parse_opencv_yaml(
         depth_range: None,
         has_road: true,
         right_row_offset_px: 0.0,
+        measure_rows: true,
     })
 }
 

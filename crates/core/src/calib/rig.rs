@@ -65,6 +65,7 @@
 //! ```toml
 //! [rectification]
 //! right_row_offset_px = -0.5  # row y of the right image is read at y - 0.5; |x| <= 2
+//! measure = true              # flyd measures what is left and corrects it (a rectified rig)
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -94,6 +95,7 @@ struct RigFile {
 #[serde(deny_unknown_fields)]
 struct RectificationToml {
     right_row_offset_px: Option<f64>,
+    measure: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -182,11 +184,9 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
     if let Some(range) = depth_range {
         check_depth_range(origin, range, min, max)?;
     }
-    let right_row_offset_px = file
-        .rectification
-        .unwrap_or_default()
-        .right_row_offset_px
-        .unwrap_or(0.0);
+    let rectification = file.rectification.unwrap_or_default();
+    let right_row_offset_px = rectification.right_row_offset_px.unwrap_or(0.0);
+    let measure_rows = rectification.measure.unwrap_or(true);
     if !(right_row_offset_px.is_finite() && right_row_offset_px.abs() <= MAX_RIGHT_ROW_OFFSET) {
         return Err(field_error(
             origin,
@@ -211,6 +211,7 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
             depth_range,
             has_road: search.road.unwrap_or(true),
             right_row_offset_px,
+            measure_rows,
         });
     }
     let rig = match (file.left, file.right, file.opencv) {
@@ -249,6 +250,7 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
         depth_range,
         has_road: search.road.unwrap_or(true),
         right_row_offset_px,
+        measure_rows,
     })
 }
 

@@ -85,6 +85,7 @@ use crate::road::RoadPlane;
 use breeding::Breeder;
 use change::{ChangeMap, EgoFlow};
 use fitness::{Kernel, Scratch};
+pub use immigration::MAX_FOCUS;
 use immigration::{Context, Immigration};
 use mutation::Mutation;
 use phase::Phase;
@@ -304,6 +305,15 @@ impl Engine {
             });
         }
         Ok(engine)
+    }
+
+    /// Where something was seen in the corridor (left-image pixels and depths, at most
+    /// [`MAX_FOCUS`] kept): `focus_immigrants` immigrants a generation look around those
+    /// blocks and depths ([`EngineParams::focus_immigrants`]), until the next call. No
+    /// allocation.
+    pub fn set_focus(&mut self, pixels: impl Iterator<Item = (f32, f32, f32)>) {
+        let (w, h, _, _) = self.frame_size;
+        self.immigration.set_focus(pixels, w, h);
     }
 
     pub fn params(&self) -> &EngineParams {

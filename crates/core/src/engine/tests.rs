@@ -976,3 +976,70 @@ fn a_wall_that_moves_with_the_vehicle_keeps_its_flies_when_they_are_predicted() 
         "{on_wall} of the 200 best flies still on the wall"
     );
 }
+
+/// Focused immigrants look around what was seen: each of this generation's first
+/// immigrants projects into a focus block or a neighbour, within 15 % of the focus's inverse
+/// depth (or is redrawn when outside an image). Without a focus (or with none of them) the
+/// population is the paper's, bit for bit.
+#[test]
+fn focused_immigrants_look_around_what_was_seen() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 6.0, 3, 1);
+    // Seen: a few pixels around (100, 60) at 5 m.
+    let seen = [
+        (100.0f32, 60.0f32, 5.0f32),
+        (104.0, 62.0, 5.1),
+        (97.0, 58.0, 4.9),
+    ];
+    let run = |n: u32, focus: bool| {
+        let mut e = Engine::new(
+            &rig,
+            EngineParams {
+                focus_immigrants: n,
+                ..params(800, 5)
+            },
+        )
+        .expect("engine");
+        for _ in 0..4 {
+            if focus {
+                e.set_focus(seen.iter().copied());
+            }
+            e.step(&frame).expect("step");
+        }
+        e
+    };
+    let bits = |e: &Engine| -> Vec<u32> {
+        let p = e.population();
+        [&p.x, &p.y, &p.z, &p.fitness]
+            .iter()
+            .flat_map(|v| v.iter().map(|f| f.to_bits()))
+            .collect()
+    };
+    let paper = run(0, false);
+    assert_eq!(bits(&paper), bits(&run(0, true)), "none drawn: the paper's");
+    assert_eq!(
+        bits(&paper),
+        bits(&run(8, false)),
+        "nothing seen: the paper's"
+    );
+    let e = run(8, true);
+    assert_ne!(bits(&paper), bits(&e));
+    let p = e.population();
+    let from = p.len() - e.params().immigrants();
+    let block = crate::frame::BLOCK as f32;
+    let mut around = 0;
+    for i in from..from + e.params().focus_immigrants() {
+        let (u, v) = (p.u_left[i], p.v_left[i]);
+        assert!(!u.is_nan(), "fly {i} outside the image");
+        // Within a block of a focus block: within two block sides of a focus pixel.
+        let near = seen
+            .iter()
+            .any(|&(x, y, _)| (u - x).abs() < 2.0 * block && (v - y).abs() < 2.0 * block);
+        // Depth along the left camera's axis (level cameras: vehicle z).
+        let inv = 1.0 / p.z[i];
+        let depth_ok = seen.iter().any(|&(_, _, z)| (inv * z - 1.0).abs() <= 0.16);
+        around += usize::from(near && depth_ok);
+    }
+    // The few whose probe lay outside the right image were redrawn uniformly.
+    assert!(around >= 6, "{around} of 8 around what was seen");
+}
