@@ -114,6 +114,9 @@ impl Immigration {
             let (x, y) = ((u + 0.5).max(0.0) as usize, (v + 0.5).max(0.0) as usize);
             if x < w && y < h && depth > 0.0 {
                 let b = (y / crate::frame::BLOCK) * cols + x / crate::frame::BLOCK;
+                // The depth ahead (vehicle z) stands for the depth along the left camera's
+                // axis: equal for a level camera, a few per cent off for one pitched by a
+                // few degrees, well inside the FOCUS_DEPTH window.
                 self.focus.push((b as u32, 1.0 / depth));
             }
         }
