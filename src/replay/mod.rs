@@ -346,7 +346,8 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             feed.load(wanted, &mut frame, &mut left)?;
             if index.is_none() {
                 // The first frame: the rows measured and corrected before any fly sees it.
-                let measured = (settings.measure_rows && feed.rig().is_rectified())
+                let rectified = feed.rig().is_rectified();
+                let measured = (settings.measure_rows && rectified)
                     .then(|| {
                         residual_row_offset(
                             &frame,
@@ -357,7 +358,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 let decided = RowCorrection::decide(
                     settings.right_row_shift,
                     settings.measure_rows,
-                    feed.rig().is_rectified(),
+                    rectified,
                     measured,
                 );
                 if decided.applied_px != settings.right_row_shift {
