@@ -655,6 +655,11 @@ impl<C: Clock> CandumpReplayRx<C> {
     pub fn remaining(&self) -> usize {
         self.frames.len()
     }
+
+    /// The frames not yet released, each with its time from the log's first frame.
+    pub fn into_frames(self) -> impl Iterator<Item = (Duration, ReceivedFrame)> {
+        self.frames.into_iter()
+    }
 }
 
 impl<C: Clock + Send> CanReceiver for CandumpReplayRx<C> {

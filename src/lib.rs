@@ -7,6 +7,7 @@ pub mod bus;
 pub mod capture;
 pub mod config;
 pub mod daemon;
+pub mod eval;
 pub mod logging;
 pub mod mock;
 pub mod record;

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use flyd::replay::{self, FrameFeed, PairFeed, ScenarioFeed, SequenceFeed, Summary};
+use flyd::replay::{self, Request, Source, Summary};
 use flyd_core::engine::EngineParams;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -28,6 +28,9 @@ struct Cli {
 enum Command {
     /// Run the evolution on a stereo pair or a hw-mock scenario and write what it found.
     Replay(ReplayArgs),
+    /// Replay the labelled recordings of a manifest (eval/*.toml) over seeds and judge every
+    /// run against its label; exits 1 when one fails.
+    Eval(EvalArgs),
     /// Time generations of the engine on a synthetic scene (single thread).
     Bench(BenchArgs),
     /// Run the daemon: cameras -> fly evolution -> CLEAR/SLOW/STOP on CAN.
@@ -94,6 +97,11 @@ struct ReplayArgs {
     /// image_02/data + image_03/data (needs --calib).
     #[arg(long, requires = "calib", conflicts_with = "scenario")]
     sequence: Option<PathBuf>,
+    /// With --sequence: the vehicle's motion from this candump log of its bus (`VCU_Motion`,
+    /// as `flyd run --can-input` takes it: the log's first frame due with the first image,
+    /// every frame checked as the daemon checks it) instead of the folder's poses.txt.
+    #[arg(long, value_name = "PATH", requires = "sequence")]
+    can_input: Option<PathBuf>,
     /// With --sequence: frames per second of the recording.
     #[arg(long, default_value_t = 10.0)]
     fps: f64,
@@ -148,6 +156,35 @@ struct ReplayArgs {
     record: Option<PathBuf>,
 }
 
+#[derive(Args)]
+struct EvalArgs {
+    /// The manifest: `[[item]]`s with their source, rig and label (see eval/real.toml).
+    manifest: PathBuf,
+    /// Where the items' folders are (default: the manifest's `data`, relative to it).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Runs seeds 1..=N of every item.
+    #[arg(long, default_value_t = 20)]
+    seeds: u64,
+    /// Runs at once (default: the cores this process may use).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Take [engine] (but its seed), [perception], [decision], [vehicle] and [evolution] from
+    /// this daemon configuration (default: the built-in defaults).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Only these items (comma-separated names).
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
+    /// Also write the report, every run of every item, as JSON to this file.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Keep the rigs and every run's replay outputs (trace.csv, overlay.png...) in
+    /// DIR/ITEM/seedN.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
 #[derive(Debug, Args)]
 struct RunArgs {
     /// The TOML configuration file.
@@ -191,6 +228,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Replay(args) => replay_command(args),
+        Command::Eval(args) => eval_command(&args),
         Command::Bench(args) => bench_command(args),
         Command::Run(args) => cmd_run(&args),
         Command::CheckConfig { file } => cmd_check_config(&file),
@@ -209,28 +247,6 @@ fn main() -> ExitCode {
     }
 }
 
-/// The frame rate a still pair is replayed at (a camera filming it).
-const PAIR_FPS: f64 = 30.0;
-
-/// Generations a still pair needs for its replay to end on a settled decision: the warm-up
-/// (untrusted: the safe command), the hold that releases the safe command once the
-/// perception is trusted (the longer of the two holds with a STOP safe command), the frames
-/// that confirm an obstacle, and two frames more; at least 50. At the defaults (warm-up 30,
-/// SLOW held 500 ms, confirmed on 2 frames, 3 generations a 30 fps frame): 87. With 50, the
-/// replay of a clear road ended on the start-up's SLOW (FAULT_FALLBACK) before the hold ran
-/// out.
-fn settled_pair_generations(config: &DaemonConfig, per_frame: u64, fps: f64) -> u64 {
-    let d = &config.decision;
-    let hold = match d.safe_command {
-        flyd_core::decision::Command::Stop => d.slow_hold.max(d.stop_hold),
-        _ => d.slow_hold,
-    };
-    let hold_frames = (hold.as_secs_f64() * fps).ceil() as u64;
-    let confirm_frames = u64::from(config.perception.track.trigger_frames) + 2;
-    let needed = config.evolution.warmup_generations + per_frame * (hold_frames + confirm_frames);
-    needed.max(50)
-}
-
 fn replay_command(args: ReplayArgs) -> Result<()> {
     if let Some(path) = &args.mcap {
         return replay_recording(path, &args);
@@ -242,115 +258,129 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         Some(path) => config::check(path)?,
         None => DaemonConfig::with_rig(flyd::mock::mock_rig(640, 480)?),
     };
-    let mut params = config.engine.clone();
-    if let Some(flies) = args.flies {
-        params.flies = flies;
-    }
-    if let Some(seed) = args.seed {
-        params.seed = seed;
-    }
-    let speed_kmh = args.speed.unwrap_or(config.vehicle.assumed_speed * 3.6);
-    if !(speed_kmh.is_finite() && (0.0..=250.0).contains(&speed_kmh)) {
-        bail!("--speed {speed_kmh}: must be within 0..=250 km/h");
-    }
-    if !(args.fps.is_finite() && args.fps > 0.0) {
-        bail!(
-            "--fps {}: must be a positive number of frames per second",
-            args.fps
-        );
-    }
-    // The calibration's row correction of the right image (a scenario's rig needs none).
-    let mut right_row_shift = 0.0;
-    // A scenario's rig is hw-mock's, not rectified: the replay says so and measures nothing.
-    let mut measure_rows = true;
-    let (mut feed, generations, per_frame, fps): (Box<dyn FrameFeed>, u64, u64, f64) = if let Some(
-        name,
-    ) =
-        &args.scenario
-    {
-        let feed = ScenarioFeed::new(name, args.width, args.height)?;
-        let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
-        let generations = args.generations.unwrap_or(feed.frames() * per_frame);
-        let fps = feed.fps();
-        (Box::new(feed), generations, per_frame, fps)
+    let source = if let Some(name) = &args.scenario {
+        Source::Scenario {
+            name: name.clone(),
+            width: args.width,
+            height: args.height,
+        }
     } else if let Some(dir) = &args.sequence {
         let Some(calib) = &args.calib else {
             bail!("--sequence needs --calib");
         };
-        let (feed, cal) = SequenceFeed::open(dir, calib, args.fps)?;
-        cal.apply_to(&mut params);
-        right_row_shift = cal.right_row_offset_px;
-        measure_rows = cal.measure_rows;
-        let per_frame = args
-            .generations_per_frame
-            .unwrap_or_else(|| replay::daemon_generations_per_frame(&config.evolution, args.fps))
-            .max(1);
-        let generations = args.generations.unwrap_or(feed.frames() * per_frame);
-        (Box::new(feed), generations, per_frame, args.fps)
+        Source::Sequence {
+            dir: dir.clone(),
+            calib: calib.clone(),
+            fps: args.fps,
+            can_input: args.can_input.clone(),
+        }
     } else {
         let (Some(left), Some(right), Some(calib)) = (&args.left, &args.right, &args.calib) else {
             bail!(
                 "replay needs --left, --right and --calib, --sequence and --calib, or --scenario"
             );
         };
-        let (feed, cal) = PairFeed::load(left, right, calib)?;
-        cal.apply_to(&mut params);
-        right_row_shift = cal.right_row_offset_px;
-        measure_rows = cal.measure_rows;
-        // A still camera filming the pair at 30 fps, 3 generations a frame (no change, so
-        // no burst): what the daemon sees standing in front of that scene.
-        let per_frame = args.generations_per_frame.unwrap_or(3).max(1);
-        let generations = args
-            .generations
-            .unwrap_or_else(|| settled_pair_generations(&config, per_frame, PAIR_FPS));
-        let feed = feed.repeated(generations.div_ceil(per_frame));
-        (Box::new(feed), generations, per_frame, PAIR_FPS)
+        Source::Pair {
+            left: left.clone(),
+            right: right.clone(),
+            calib: calib.clone(),
+        }
     };
+    let request = Request {
+        source,
+        flies: args.flies,
+        seed: args.seed,
+        speed_kmh: args.speed,
+        generations: args.generations,
+        generations_per_frame: args.generations_per_frame,
+    };
+    let mut prepared = request.prepare(&config).context("replay")?;
     let recorder = match &args.record {
         Some(path) => Some(start_offline_recording(
             path,
-            feed.rig(),
-            params.flies,
+            prepared.feed.rig(),
+            prepared.settings.params.flies,
             args.config.as_deref(),
             &[
                 ("source", "flyd replay"),
-                ("seed", &params.seed.to_string()),
+                ("seed", &prepared.settings.params.seed.to_string()),
             ],
         )?),
         None => None,
     };
-    let settings = replay::Settings {
-        record: recorder.as_ref().map(|r| r.recorder.clone()),
-        params,
-        perception: config.perception,
-        decision: config.decision,
-        speed: speed_kmh / 3.6,
-        fixed_speed: args.speed.is_some(),
-        predict: config.vehicle.predict_flies,
-        generations,
-        per_frame,
-        fps,
-        sensor: config.sensor,
-        warmup_generations: config.evolution.warmup_generations,
-        right_row_shift,
-        measure_rows,
-    };
-    let run = replay::run(feed.as_mut(), settings).context("replay")?;
+    prepared.settings.record = recorder.as_ref().map(|r| r.recorder.clone());
+    let (run, reaction) = prepared.run(&config).context("replay")?;
     if let Some(recorder) = recorder {
         let report = recorder.finish()?;
         tracing::debug!(messages = report.messages, "replay recorded");
     }
     replay::write_outputs(&out, &run)?;
-    let reaction = feed.first_obstacle().and_then(|f| {
-        replay::Reaction::of(
-            &run.trace,
-            f,
-            config.decision.slow_threshold,
-            config.decision.stop_threshold,
-        )
-    });
     let summary = Summary::of(&run, &out, reaction);
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
+    Ok(())
+}
+
+/// `flyd eval MANIFEST`.
+fn eval_command(args: &EvalArgs) -> Result<()> {
+    let manifest = flyd::eval::Manifest::load(&args.manifest)?;
+    let mut items = manifest.items.clone();
+    if !args.only.is_empty() {
+        if let Some(unknown) = args
+            .only
+            .iter()
+            .find(|n| !items.iter().any(|i| &i.name == *n))
+        {
+            bail!(
+                "--only {unknown}: no item of that name in {}",
+                args.manifest.display()
+            );
+        }
+        items.retain(|i| args.only.contains(&i.name));
+    }
+    if args.seeds == 0 {
+        bail!("--seeds 0: nothing to run");
+    }
+    let base = args.manifest.parent().unwrap_or(Path::new("."));
+    let data = match (&args.data, &manifest.data) {
+        (Some(d), _) => d.clone(),
+        (None, Some(d)) => base.join(d),
+        (None, None) => PathBuf::from("."),
+    };
+    let config = match &args.config {
+        Some(path) => config::check(path)?,
+        None => DaemonConfig::with_rig(flyd::mock::mock_rig(640, 480)?),
+    };
+    let temp;
+    let work = match &args.out {
+        Some(dir) => dir.clone(),
+        None => {
+            temp = tempfile::Builder::new()
+                .prefix("flyd-eval-")
+                .tempdir()
+                .context("a folder for the items' rigs")?;
+            temp.path().to_path_buf()
+        }
+    };
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+    });
+    let options = flyd::eval::Options {
+        data,
+        seeds: args.seeds,
+        jobs,
+        config,
+        work,
+        outputs: args.out.is_some(),
+    };
+    let report = flyd::eval::run(&items, &options)?;
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    say!("{report}")?;
+    if !report.passed() {
+        bail!("labels not met (see above)");
+    }
     Ok(())
 }
 

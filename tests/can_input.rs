@@ -214,3 +214,133 @@ fn a_speed_beyond_what_flyd_sees_in_time_is_logged() {
     let (_, log) = run_logged(&config, Some(&input), 1.5);
     assert!(!log.contains(warning), "{log}");
 }
+
+/// The speed (m/s) and yaw rate (rad/s, left positive) between consecutive KITTI poses
+/// (3x4 camera-to-world, camera x right, y down, z ahead) at `fps`.
+fn motion_of_poses(text: &str, fps: f64) -> Vec<(f64, f64)> {
+    let poses: Vec<Vec<f64>> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            l.split_whitespace()
+                .map(|v| v.parse().expect("number"))
+                .collect()
+        })
+        .collect();
+    poses
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (&w[0], &w[1]);
+            let travelled = ((b[3] - a[3]).powi(2) + (b[11] - a[11]).powi(2)).sqrt();
+            let heading = |p: &Vec<f64>| p[2].atan2(p[10]);
+            (travelled * fps, -(heading(b) - heading(a)) * fps)
+        })
+        .collect()
+}
+
+#[test]
+fn a_real_drive_replayed_with_its_bus_is_decided_at_the_speed_vcu_motion_says() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let drive = repo("tests/fixtures/kitti/kitti_odom06_seq20_gray");
+    let poses = std::fs::read_to_string(drive.join("poses.txt")).expect("poses");
+    let motion = motion_of_poses(&poses, 10.0);
+    // The drive's bus: VCU_Motion every 20 ms with the poses' motion for 1.2 s (12 frames),
+    // every 7th frame corrupted; then the VCU falls silent.
+    let mut text = String::new();
+    let mut counter = AliveCounter::ZERO;
+    let t0 = Duration::from_secs(1_764_000_000);
+    for k in 0..60u64 {
+        let (speed, yaw_rate) = motion[(k / 5) as usize];
+        let msg = MotionMsg {
+            valid: true,
+            speed,
+            yaw_rate,
+        };
+        let mut data = msg.encode(counter.advance());
+        if k % 7 == 3 {
+            data[2] ^= 0x5A;
+        }
+        let t = t0 + Duration::from_millis(20 * k);
+        text.push_str(&format_candump_line(t, "can0", 0x110, &data));
+        text.push('\n');
+    }
+    let log = dir.path().join("bus.log");
+    std::fs::write(&log, text).expect("log");
+    let out_dir = dir.path().join("out");
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(
+        &rig,
+        format!(
+            "[import]\nfile = {:?}\n\n[mount]\nposition = [0.0, 1.65, 0.0]\n",
+            drive.join("calib.txt").display().to_string()
+        ),
+    )
+    .expect("rig");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["replay", "--sequence"])
+        .arg(&drive)
+        .arg("--calib")
+        .arg(&rig)
+        .arg("--can-input")
+        .arg(&log)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .expect("flyd replay");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("summary");
+    let source = summary["motion_source"].as_str().expect("motion source");
+    // 60 sent, 9 corrupted; the first frame comes with the first message (not yet trusted),
+    // and the frames after the silence (stale after 3 periods) have none.
+    assert!(
+        source.starts_with("candump ")
+            && source.contains("51 VCU_Motion accepted, 9 rejected")
+            && source.contains("no trusted motion on 8 of 20 frames"),
+        "{source}"
+    );
+    assert_eq!(summary["speed_source"], "feed");
+    assert_eq!(summary["predict_flies"], true);
+    // Each frame's speed is what the bus said while it was trusted, else the assumed 30 km/h.
+    let frames = std::fs::read_to_string(out_dir.join("frames.csv")).expect("frames.csv");
+    let mut lines = frames.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (frame_col, speed_col) = (col("frame"), col("speed_kmh"));
+    for line in lines {
+        let row: Vec<&str> = line.split(',').collect();
+        let frame: usize = row[frame_col].parse().expect("frame");
+        let speed: f64 = row[speed_col].parse().expect("speed");
+        // The newest message at the frame's time that was not corrupted.
+        let newest = (0..=5 * frame as u64).rev().find(|k| k % 7 != 3);
+        let want = match newest {
+            Some(k) if (1..=12).contains(&frame) => motion[(k / 5) as usize].0 * 3.6,
+            _ => 30.0,
+        };
+        assert!(
+            (speed - want).abs() < 0.2,
+            "frame {frame}: {speed} km/h, the bus said {want}"
+        );
+    }
+    // A log that is not candump is an error naming the file and line.
+    std::fs::write(&log, "not a candump line\n").expect("log");
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["replay", "--sequence"])
+        .arg(&drive)
+        .arg("--calib")
+        .arg(&rig)
+        .arg("--can-input")
+        .arg(&log)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .expect("flyd replay");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("bus.log:1: not a candump line"),
+        "{stderr}"
+    );
+}

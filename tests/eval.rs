@@ -1,6 +1,7 @@
-//! The labelled real recordings of `eval/fixtures.toml` (the project's KITTI copies: pairs,
-//! single frames of sequences, the first 20 frames of a drive at 43 km/h with its poses)
-//! replayed over seeds by `scripts/eval-seeds`, as a user validates flyd on their own rig.
+//! `flyd eval`: the labelled real recordings of `eval/fixtures.toml` (the project's KITTI
+//! copies: pairs, single frames of sequences, the first 20 frames of a drive at 43 km/h with
+//! its poses) replayed over seeds, as a user validates flyd on their own rig; and a label that
+//! is not met fails the command.
 //!
 //! Every item without an obstacle ("clear", "no-stop") must meet its label on every seed;
 //! an item with a car in the lane ("stop") on at least 2 of the 3 seeds. Measured over 40
@@ -11,39 +12,62 @@ use std::process::Command;
 
 const SEEDS: u32 = 3;
 
-#[test]
-fn labelled_real_recordings_meet_their_labels_over_seeds() {
+fn flyd_eval(args: &[&str]) -> (std::process::Output, serde_json::Value) {
     let root = env!("CARGO_MANIFEST_DIR");
     let work = tempfile::tempdir().expect("tempdir");
     let json = work.path().join("eval.json");
-    let out = Command::new("python3")
+    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
         .current_dir(root)
-        .args(["scripts/eval-seeds", "--manifest", "eval/fixtures.toml"])
-        .args(["--data", "tests/fixtures/kitti"])
-        .args(["--seeds", &SEEDS.to_string(), "--jobs", "2"])
-        .args(["--flyd", env!("CARGO_BIN_EXE_flyd")])
-        .arg("--work")
-        .arg(work.path())
+        .arg("eval")
+        .args(args)
         .arg("--json")
         .arg(&json)
         .output()
-        .expect("python3 runs scripts/eval-seeds");
+        .expect("flyd eval runs");
+    println!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report = std::fs::read(&json)
+        .map(|b| serde_json::from_slice(&b).expect("JSON"))
+        .unwrap_or(serde_json::Value::Null);
+    (out, report)
+}
+
+#[test]
+fn labelled_real_recordings_meet_their_labels_over_seeds() {
+    let (out, report) = flyd_eval(&[
+        "eval/fixtures.toml",
+        "--seeds",
+        &SEEDS.to_string(),
+        "--jobs",
+        "2",
+    ]);
     let table = String::from_utf8_lossy(&out.stdout);
-    println!("{table}{}", String::from_utf8_lossy(&out.stderr));
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&json).expect("the JSON report")).expect("JSON");
-    let items = report.as_object().expect("items");
+    let items = report["items"].as_array().expect("items");
     assert!(
         items.len() >= 14,
         "every fixture is labelled: {}",
         items.len()
     );
     let mut failures = Vec::new();
-    for (name, item) in items {
+    for item in items {
+        let name = item["name"].as_str().expect("name");
         let ok = item["ok"].as_u64().expect("ok");
         let expect = item["label"]["expect"].as_str().expect("label");
-        for run in item["runs"].as_array().expect("runs") {
+        let runs = item["runs"].as_array().expect("runs");
+        assert_eq!(runs.len(), SEEDS as usize, "{name}");
+        for run in runs {
             assert!(run.get("error").is_none(), "{name}: {run}");
+            // Every real recording is rectified: flyd measured and corrected its rows.
+            assert_eq!(run["row_correction"], "measured", "{name}: {run}");
+        }
+        if name.starts_with("odom06") {
+            assert!(
+                runs.iter().all(|r| r["speed_source"] == "feed"),
+                "the drive is decided at its poses' speed"
+            );
         }
         let needed = if expect == "stop" {
             2
@@ -55,4 +79,53 @@ fn labelled_real_recordings_meet_their_labels_over_seeds() {
         }
     }
     assert!(failures.is_empty(), "labels not met: {failures:?}\n{table}");
+    // The exit status says whether every run met its label.
+    assert_eq!(
+        out.status.success(),
+        items
+            .iter()
+            .all(|i| i["ok"].as_u64() == Some(u64::from(SEEDS))),
+        "{table}"
+    );
+}
+
+#[test]
+fn a_label_not_met_fails_the_command_and_says_why() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let manifest = dir.path().join("wrong.toml");
+    // hw-mock's pedestrian 4 m ahead of a vehicle at 30 km/h labelled as a clear road: every
+    // run must fail it.
+    std::fs::write(
+        &manifest,
+        "[[item]]\nname = \"pedestrian\"\nscenario = \"pedestrian-4m\"\nsize = \"320x240\"\n\
+         flies = 1000\nspeed_kmh = 30\nexpect = \"clear\"\n\n\
+         [[item]]\nname = \"empty\"\nscenario = \"empty-road\"\nsize = \"320x240\"\n\
+         flies = 1000\nexpect = \"no-stop\"\n",
+    )
+    .expect("manifest");
+    let path = manifest.display().to_string();
+    let (out, report) = flyd_eval(&[&path, "--seeds", "2"]);
+    assert_eq!(out.status.code(), Some(1), "a failed label exits 1");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("pedestrian: seed 1: false alarm"),
+        "{stdout}"
+    );
+    let items = report["items"].as_array().expect("items");
+    assert_eq!(items[0]["ok"], 0);
+    assert!(items[0]["false_stop_rate"].as_f64().expect("rate") > 0.5);
+    assert_eq!(items[1]["ok"], 2, "the empty road meets its label");
+    // A manifest that cannot be used says which item and key.
+    std::fs::write(
+        &manifest,
+        "[[item]]\nname = \"car\"\nscenario = \"pedestrian-4m\"\nexpect = \"stop\"\n",
+    )
+    .expect("manifest");
+    let (out, _) = flyd_eval(&[&path]);
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("item 'car': expect = \"stop\" needs `distance`"),
+        "{stderr}"
+    );
 }

@@ -386,15 +386,17 @@ impl DaemonConfig {
     /// `can.messages.motion`, staleness from `vehicle.motion_stale_periods`; `None` when
     /// `vehicle.motion = "none"`.
     pub fn motion(&self) -> Option<MotionConfig> {
-        if self.vehicle.motion == MotionInput::None {
-            return None;
-        }
+        (self.vehicle.motion != MotionInput::None).then(|| self.motion_monitor())
+    }
+
+    /// [`DaemonConfig::motion`] whatever `vehicle.motion` says (a replay given a candump log).
+    pub fn motion_monitor(&self) -> MotionConfig {
         let m = self.can.messages.motion;
-        Some(MotionConfig {
+        MotionConfig {
             data_id: m.data_id,
             period: m.period(),
             stale: m.period() * self.vehicle.motion_stale_periods,
-        })
+        }
     }
 
     /// A configuration for a rig given in code: 30 fps cameras of the rig's size, default

@@ -215,8 +215,9 @@ pub struct SequenceFeed {
     rig: StereoRig,
     calibration: PathBuf,
     pairs: Vec<(PathBuf, PathBuf)>,
-    /// The vehicle's motion from each frame to the next, from the folder's `poses.txt`.
-    motion: Option<(PathBuf, Vec<VehicleMotion>)>,
+    /// The vehicle's motion from each frame to the next (from the folder's `poses.txt`, or
+    /// a candump log: [`SequenceFeed::with_motion`]), and where it came from.
+    motion: Option<(String, Vec<Option<VehicleMotion>>)>,
 }
 
 /// The poses file a sequence folder may hold ([`super::poses`]).
@@ -274,7 +275,11 @@ impl SequenceFeed {
         }
         let poses = dir.join(SEQUENCE_POSES);
         let motion = if poses.is_file() {
-            Some((poses.clone(), motion_from_poses(&poses, pairs.len(), fps)?))
+            let motion = motion_from_poses(&poses, pairs.len(), fps)?;
+            Some((
+                format!("poses {}", poses.display()),
+                motion.into_iter().map(Some).collect(),
+            ))
         } else {
             None
         };
@@ -285,6 +290,17 @@ impl SequenceFeed {
             motion,
         };
         Ok((feed, cal))
+    }
+}
+
+impl SequenceFeed {
+    /// The sequence with `motion` (one a frame; `None` where it is not known) from `source`
+    /// instead of its poses.
+    pub fn with_motion(self, source: String, motion: Vec<Option<VehicleMotion>>) -> Self {
+        Self {
+            motion: Some((source, motion)),
+            ..self
+        }
     }
 }
 
@@ -322,13 +338,11 @@ impl FrameFeed for SequenceFeed {
     fn motion(&self, index: u64) -> Option<VehicleMotion> {
         let (_, motion) = self.motion.as_ref()?;
         let i = usize::try_from(index).unwrap_or(usize::MAX);
-        motion.get(i).or(motion.last()).copied()
+        motion.get(i).or(motion.last()).copied().flatten()
     }
 
     fn motion_source(&self) -> Option<String> {
-        self.motion
-            .as_ref()
-            .map(|(path, _)| format!("poses {}", path.display()))
+        self.motion.as_ref().map(|(source, _)| source.clone())
     }
 
     fn frame_name(&self, index: u64) -> String {

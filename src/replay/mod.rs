@@ -25,14 +25,17 @@
 //!
 //! This is a command at the edge: it reads files and the clock; perception does neither.
 
+pub mod can_motion;
 pub mod feed;
 pub mod output;
 pub mod poses;
 pub mod recorded;
+pub mod request;
 pub mod summary;
 
 pub use feed::{FrameFeed, PairFeed, SEQUENCE_LAYOUTS, ScenarioFeed, SequenceFeed};
 pub use output::{overlay, warning_map, write_flies_csv, write_outputs, write_trace_csv};
+pub use request::{Prepared, Request, Source};
 pub use summary::{Alarms, FrameReport, Reaction, Summary, Timing};
 
 use crate::config::EvolutionConfig;
@@ -58,6 +61,9 @@ pub const OVERLAY_FLIES: usize = 250;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
+    /// A request that makes no sense (a negative speed, no frame rate).
+    #[error("{0}")]
+    Usage(String),
     #[error("{path}")]
     Io {
         path: String,
@@ -134,6 +140,8 @@ pub enum ReplayError {
     NoImages(String),
     #[error("the replay's recording")]
     Record(#[from] crate::record::WriterError),
+    #[error("the CAN input")]
+    CanInput(#[source] Box<crate::bus::ReplayLogError>),
     #[error("a recorded JPEG frame")]
     Jpeg(#[source] Box<dyn std::error::Error + Send + Sync>),
 }
@@ -447,7 +455,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         trace,
         left,
         frames: index.map_or(0, |i| i + 1),
-        moving_feed: feed.motion(0).is_some(),
+        moving_feed: feed.motion_source().is_some(),
         motion_source: feed.motion_source(),
         row_offset,
         row_correction,

@@ -1,0 +1,206 @@
+//! One run of an item: what the replay decided, and whether that meets the item's label.
+
+use super::manifest::{Expect, Item};
+use crate::replay::{Replay, Summary};
+use flyd_core::decision::{Command, CommandReason};
+use serde::Serialize;
+
+/// What one replay of an item decided (frames after the warm-up, within the item's `frames`).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Outcome {
+    /// Why the run did not finish.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The command of the last generation, and why.
+    pub command: String,
+    pub reason: String,
+    /// Frames judged, and of those, frames with a STOP (with a SLOW and no STOP) from the
+    /// perception.
+    pub frames: u64,
+    pub stop_frames: u64,
+    pub slow_frames: u64,
+    /// The confirmed obstacle of the last generation, metres.
+    pub obstacle: Option<f64>,
+    /// The nearest confirmed obstacle on the frames judged, metres.
+    pub nearest_confirmed: Option<f64>,
+    /// The first frame with a SLOW or STOP from the perception, and with a STOP (any
+    /// generation, the warm-up's included: a scenario's obstacle may come early).
+    pub first_slow_frame: Option<u64>,
+    pub first_stop_frame: Option<u64>,
+    /// Generations from the scenario's obstacle appearing to the first STOP.
+    pub stop_after: Option<u64>,
+    /// Where the obstacle was when the first STOP (SLOW) came, metres (`stop-before`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stop_at_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub slow_at_m: Option<f64>,
+    /// The right image's row correction applied, px, and where it came from.
+    pub row_correction_px: f64,
+    pub row_correction: &'static str,
+    /// Where the motion came from (`assumed`, `fixed`, `feed`) and the feed's source.
+    pub speed_source: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motion_source: Option<String>,
+    /// The label met, or why not.
+    pub verdict: Verdict,
+}
+
+/// Whether a run meets its item's label.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[serde(tag = "result", content = "why", rename_all = "lowercase")]
+pub enum Verdict {
+    Pass,
+    #[default]
+    Pending,
+    Fail(String),
+}
+
+impl Verdict {
+    pub fn passed(&self) -> bool {
+        *self == Self::Pass
+    }
+}
+
+impl Outcome {
+    /// A run that did not finish.
+    pub fn failed(why: &str) -> Self {
+        Self {
+            error: Some(why.to_string()),
+            command: "?".into(),
+            reason: "?".into(),
+            verdict: Verdict::Fail("error".into()),
+            ..Self::default()
+        }
+    }
+
+    /// What `run` decided, judged against `item`.
+    pub fn of(item: &Item, run: &Replay, summary: &Summary) -> Self {
+        let warmup = run.settings.warmup_generations;
+        let judged = |frame: u64| item.frames.is_none_or(|[a, b]| (a..=b).contains(&frame));
+        let perception_alarm = |r: &&crate::replay::TraceRow| {
+            r.reason == CommandReason::Perception && r.command > Command::Clear
+        };
+        let mut o = Self {
+            command: summary.last.command.clone(),
+            reason: summary.last.reason.clone(),
+            obstacle: run
+                .trace
+                .last()
+                .and_then(|r| r.tracked.confirmed())
+                .map(|ob| ob.distance),
+            row_correction_px: run.settings.right_row_shift,
+            row_correction: run.row_correction.map_or("none", |c| c.source),
+            speed_source: summary.speed_source,
+            motion_source: summary.motion_source.clone(),
+            stop_after: summary.reaction.and_then(|r| r.stop_command_after),
+            ..Self::default()
+        };
+        for r in run.trace.iter().filter(perception_alarm) {
+            o.first_slow_frame.get_or_insert(r.frame);
+            if r.command == Command::Stop {
+                o.first_stop_frame.get_or_insert(r.frame);
+            }
+        }
+        let mut last_frame = None;
+        let mut worst = Command::Clear;
+        let close = |frame: Option<u64>, worst: Command, o: &mut Self| {
+            if frame.is_some() {
+                o.frames += 1;
+                match worst {
+                    Command::Stop => o.stop_frames += 1,
+                    Command::Slow => o.slow_frames += 1,
+                    _ => {}
+                }
+            }
+        };
+        for r in run
+            .trace
+            .iter()
+            .filter(|r| r.stats.generation > warmup && judged(r.frame))
+        {
+            if last_frame != Some(r.frame) {
+                close(last_frame, worst, &mut o);
+                last_frame = Some(r.frame);
+                worst = Command::Clear;
+            }
+            if perception_alarm(&r) {
+                worst = worst.max(r.command);
+            }
+            if let Some(ob) = r.tracked.confirmed() {
+                o.nearest_confirmed = Some(
+                    o.nearest_confirmed
+                        .map_or(ob.distance, |d| d.min(ob.distance)),
+                );
+            }
+        }
+        close(last_frame, worst, &mut o);
+        o.verdict = o.judge(item, run.settings.fps);
+        o
+    }
+
+    fn judge(&mut self, item: &Item, fps: f64) -> Verdict {
+        let fail = |why: String| Verdict::Fail(why);
+        match item.expect {
+            Expect::Clear => {
+                if self.stop_frames + self.slow_frames > 0 || self.command != "CLEAR" {
+                    return fail(format!(
+                        "false alarm ({} STOP, {} SLOW frames, ends {})",
+                        self.stop_frames, self.slow_frames, self.command
+                    ));
+                }
+            }
+            Expect::NoStop => {
+                if self.stop_frames > 0 {
+                    return fail(format!("false STOP on {} frames", self.stop_frames));
+                }
+            }
+            Expect::NothingNearer => {
+                let d = item.distance.unwrap_or_default();
+                if let Some(n) = self.nearest_confirmed.filter(|n| *n < d) {
+                    return fail(format!("obstacle confirmed at {n:.2} m"));
+                }
+            }
+            Expect::Stop => {
+                let (want, tol) = (
+                    item.distance.unwrap_or_default(),
+                    item.tolerance.unwrap_or_default(),
+                );
+                match self.obstacle {
+                    Some(d) if self.command == "STOP" => {
+                        if (d - want).abs() > tol {
+                            return fail(format!("obstacle at {d:.2} m"));
+                        }
+                    }
+                    _ => return fail("missed".into()),
+                }
+            }
+            Expect::StopWithin => {
+                let within = item.generations.unwrap_or_default();
+                if self.stop_frames == 0 || self.stop_after.is_none_or(|g| g > within) {
+                    return fail(match self.stop_after {
+                        Some(g) => format!("STOP after {g} generations"),
+                        None => "no STOP".into(),
+                    });
+                }
+            }
+            Expect::StopBefore => {
+                let (from, kmh, stopping) = (
+                    item.from.unwrap_or_default(),
+                    item.kmh.unwrap_or_default(),
+                    item.stopping.unwrap_or_default(),
+                );
+                let at = |frame: u64| from - kmh / 3.6 * frame as f64 / fps;
+                self.slow_at_m = self.first_slow_frame.map(at);
+                let Some(stop) = self.first_stop_frame else {
+                    return fail("no STOP".into());
+                };
+                let at = at(stop);
+                self.stop_at_m = Some(at);
+                if at <= stopping {
+                    return fail(format!("STOP at {at:.1} m"));
+                }
+            }
+        }
+        Verdict::Pass
+    }
+}
