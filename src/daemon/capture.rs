@@ -80,6 +80,9 @@ pub struct CaptureThread {
     pub finish: Shutdown,
     /// Gets a copy of every frame as prepared (never waits: a full queue drops it).
     pub recorder: Option<crate::record::Recorder>,
+    /// The right camera's row correction in force ([`super::rows`]), given to each frame
+    /// before it is prepared; `None` for the left camera.
+    pub row_shift: Option<super::rows::SharedRowShift>,
 }
 
 const BACKOFF_MIN: Duration = Duration::from_millis(50);
@@ -96,6 +99,9 @@ impl CaptureThread {
         let mut check = ImageCheck::new(w, h);
         while !self.stop.is_requested() {
             let slot = self.writer.slot();
+            if let Some(shift) = &self.row_shift {
+                slot.image.set_row_shift(shift.get());
+            }
             match self.source.next_frame(&mut slot.image, self.poll_timeout) {
                 Ok(meta) => {
                     let now = self.clock.now();

@@ -138,6 +138,7 @@ impl EvolutionThread {
                             left_ns: crate::record::nanos(left.timestamp),
                             right_ns: crate::record::nanos(right.timestamp),
                             predict: predicted,
+                            right_row_shift_px: Some(self.stereo.right.row_shift()),
                         },
                     );
                 }

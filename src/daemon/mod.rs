@@ -236,6 +236,7 @@ pub fn run(
     let flyd_core::calib::Calibration {
         rig,
         right_row_offset_px,
+        measure_rows,
         ..
     } = config.load_calibration()?;
     for source in [&cameras.0, &cameras.1] {
@@ -268,8 +269,10 @@ pub fn run(
     // are swapped with the engine's) then keeps its packed pixels.
     let image =
         || PreparedImage::new(width, height).map(|i| i.retain_pixels_if(recorder.is_some()));
-    // The right camera's images carry the calibration's row correction (they stay on their
-    // side: the evolution thread swaps left with left, right with right).
+    // The right camera's images carry the row correction (they stay on their side: the
+    // evolution thread swaps left with left, right with right): the calibration's, until the
+    // `flyd-rows` worker measures another (the right capture thread sets it on each frame).
+    let row_shift = rows::SharedRowShift::new(right_row_offset_px);
     let right_image = || image().map(|i| i.with_row_shift(right_row_offset_px));
     let (left_writer, left_reader) = frame_ring_of(image()?);
     let (right_writer, right_reader) = frame_ring_of(right_image()?);
@@ -318,6 +321,7 @@ pub fn run(
             stop: stop.clone(),
             finish: finish.clone(),
             recorder: recorder.clone(),
+            row_shift: (side == Side::Right).then(|| row_shift.clone()),
         };
         let name = CAPTURE[index];
         let handle =
@@ -333,8 +337,12 @@ pub fn run(
     let (rows_monitor, rows_worker) = rows::RowsMonitor::start(
         width,
         height,
-        right_row_offset_px,
         flyd_core::rectification::max_disparity(&rig, config.engine.min_depth),
+        rows::RowsPolicy {
+            measure: measure_rows,
+            rectified: rig.is_rectified(),
+            shift: row_shift,
+        },
     )?;
     threads.rows = Some(rows_worker);
     let evolution = EvolutionThread {

@@ -8,16 +8,25 @@
 //! nothing else wants) measures (15-19 ms of CPU at 320x240; `took_ms` in its log, which
 //! includes the waits for an idle core), logs, and gives the frame back. The first measure is
 //! logged at INFO; a residual beyond [`WARN_PX`] at WARN, with the value to put in the rig
-//! file, once until it comes back under. Nothing is corrected while running: the correction is the calibration's
-//! (`rectification.right_row_offset_px`), and changing the images under the flies would
-//! change what a recording replays.
+//! file, once until it comes back under.
+//!
+//! On a rectified rig with `rectification.measure` on (the default), each measure the worker
+//! accepts ([`RowCorrection::decide`], the policy `flyd replay` applies on a first frame:
+//! refused with too few corners, at the edge of the offsets tried, or beyond
+//! `MAX_RIGHT_ROW_OFFSET`; then the value in force stands) becomes the right camera's row
+//! correction: the worker stores it in a [`SharedRowShift`] that the right capture thread
+//! gives every frame it prepares from then on. The calibration's value is the prior. Each
+//! pair's correction is recorded with the pair (`/flyd/pair`, `right_row_shift_px`), so
+//! that `flyd replay --mcap` prepares the very same images.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
-use flyd_core::rectification::{RowOffset, residual_row_offset};
+use flyd_core::rectification::{RowCorrection, RowOffset, residual_row_offset};
 
 use super::threads::spawn_named;
 
@@ -28,6 +37,37 @@ pub const PERIOD: Duration = Duration::from_secs(60);
 pub const WARN_PX: f64 = 0.25;
 /// The worker's thread name.
 pub const THREAD: &str = "flyd-rows";
+
+/// The right camera's row correction in force, pixels: written by the `flyd-rows` worker,
+/// read by the right capture thread before each prepare (one atomic word, the f64's bits).
+#[derive(Debug, Clone, Default)]
+pub struct SharedRowShift(Arc<AtomicU64>);
+
+impl SharedRowShift {
+    pub fn new(px: f64) -> Self {
+        Self(Arc::new(AtomicU64::new(px.to_bits())))
+    }
+
+    pub fn get(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+
+    pub fn set(&self, px: f64) {
+        self.0.store(px.to_bits(), Ordering::Relaxed);
+    }
+}
+
+/// What the worker does with a measure.
+#[derive(Debug, Clone)]
+pub struct RowsPolicy {
+    /// `rectification.measure`: apply accepted measures (else only log them).
+    pub measure: bool,
+    /// The rig is rectified ([`flyd_core::geometry::StereoRig::is_rectified`]): a measure
+    /// means something only then.
+    pub rectified: bool,
+    /// Where an applied correction goes.
+    pub shift: SharedRowShift,
+}
 
 /// The evolution thread's end: hands pairs to the worker.
 pub struct RowsMonitor {
@@ -41,12 +81,13 @@ pub struct RowsMonitor {
 
 impl RowsMonitor {
     /// A monitor for `width` x `height` pairs and its worker thread, which matches corners up
-    /// to `max_disparity` px and reports against the calibration's correction `applied_px`.
+    /// to `max_disparity` px, reports against the correction the measured frame was prepared
+    /// with, and corrects as `policy` says.
     pub fn start(
         width: u32,
         height: u32,
-        applied_px: f64,
         max_disparity: u32,
+        policy: RowsPolicy,
     ) -> Result<(Self, JoinHandle<()>), RowsError> {
         let spare = StereoFrame::new(
             PreparedImage::new(width, height)?,
@@ -61,7 +102,18 @@ impl RowsMonitor {
             for frame in jobs {
                 let started = std::time::Instant::now();
                 let measured = residual_row_offset(&frame, max_disparity);
-                log.report(measured, applied_px, started.elapsed());
+                let applied_px = frame.right.row_shift();
+                // A rig that is not rectified is measured all the same (the log says how far
+                // off it is), never corrected.
+                let decided =
+                    RowCorrection::decide(applied_px, policy.measure, policy.rectified, measured);
+                match decided.refused {
+                    None => {
+                        policy.shift.set(decided.applied_px);
+                        log.corrected(&decided, started.elapsed());
+                    }
+                    Some(why) => log.report(measured, applied_px, why, started.elapsed()),
+                }
                 if done.send(frame).is_err() {
                     break;
                 }
@@ -135,7 +187,33 @@ struct RowsLog {
 }
 
 impl RowsLog {
-    fn report(&mut self, offset: Option<RowOffset>, applied_px: f64, took: Duration) {
+    /// A measure applied: the right camera's rows are corrected from now on.
+    fn corrected(&mut self, c: &RowCorrection, took: Duration) {
+        let level_info = !self.measured || c.measured_px.is_some_and(|m| m.abs() > WARN_PX);
+        let took_ms = took.as_secs_f64() * 1e3;
+        if level_info {
+            tracing::info!(
+                prior_px = c.prior_px,
+                residual_px = c.measured_px,
+                corners = c.corners,
+                applied_px = c.applied_px,
+                took_ms,
+                "rectification: right image rows measured and corrected"
+            );
+        } else {
+            tracing::debug!(
+                prior_px = c.prior_px,
+                residual_px = c.measured_px,
+                applied_px = c.applied_px,
+                "rectification: right image rows measured and corrected"
+            );
+        }
+        self.measured = true;
+        self.warned = false;
+    }
+
+    /// A measure not applied (`why`: the policy's reason), or none made.
+    fn report(&mut self, offset: Option<RowOffset>, applied_px: f64, why: &str, took: Duration) {
         let took_ms = took.as_secs_f64() * 1e3;
         let Some(m) = offset else {
             if !self.measured {
@@ -153,6 +231,7 @@ impl RowsLog {
                 applied_px,
                 took_ms,
                 suggested_px = applied_px + m.residual_px,
+                not_corrected = why,
                 "rectification: the right image's rows are off the calibration; set \
                  rectification.right_row_offset_px in the rig file to suggested_px"
             );
@@ -168,6 +247,7 @@ impl RowsLog {
                 corners = m.corners,
                 applied_px,
                 took_ms,
+                not_corrected = why,
                 "rectification: right image rows measured"
             );
         }

@@ -61,6 +61,11 @@ pub struct Item {
     /// y up, z ahead).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mount: Option<[f64; 3]>,
+    /// A disparity map of the left image (PFM, relative to the item's folder: KITTI's and
+    /// Middlebury's `disp0.pfm`): each run then reports how many of the flies obstacles are
+    /// built from agree with it ([`super::outcome::Accuracy`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub truth: Option<String>,
     /// A sequence's motion from this candump log of the vehicle's bus, relative to its
     /// folder (default: the folder's poses.txt, if any).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -194,6 +199,9 @@ impl Manifest {
             }
             if item.frame.is_some() && item.pair.is_none() {
                 return Err(error(item, "`frame` belongs to a pair".into()));
+            }
+            if item.truth.is_some() && item.pair.is_none() {
+                return Err(error(item, "`truth` belongs to a pair".into()));
             }
             if let Some(size) = &item.size {
                 parse_size(size)

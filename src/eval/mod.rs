@@ -177,7 +177,13 @@ fn run_one(item: &Item, rig: Option<&Path>, seed: u64, options: &Options) -> Out
             crate::replay::write_outputs(&out, &run)?;
         }
         let summary = crate::replay::Summary::of(&run, &out, reaction);
-        Ok(Outcome::of(item, &run, &summary))
+        let mut outcome = Outcome::of(item, &run, &summary);
+        if let (Some(truth), Some(dir)) = (&item.truth, folder(item, &options.data)) {
+            let map = flyd_core::dataset::read_pfm(&dir.join(truth))
+                .map_err(|e| ReplayError::Usage(flyd_core::chain::Chain(&e).to_string()))?;
+            outcome.accuracy = outcome::Accuracy::of(&run, &map);
+        }
+        Ok(outcome)
     };
     replay().unwrap_or_else(|e| Outcome::failed(&flyd_core::chain::Chain(&e).to_string()))
 }

@@ -41,8 +41,65 @@ pub struct Outcome {
     pub speed_source: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub motion_source: Option<String>,
+    /// Against the item's `truth`, when it has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accuracy: Option<Accuracy>,
     /// The label met, or why not.
     pub verdict: Verdict,
+}
+
+/// How the flies obstacles are built from agree with a disparity map: the [`ACCURACY_FLIES`]
+/// fittest (raw fitness) of those whose match is unique (ambiguity at most the obstacle
+/// stage's `max_ambiguity`) on the last frame, at the pixels the map knows, each pixel once
+/// (its fittest fly: a dozen flies bred onto one pixel are one measurement, not twelve).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Accuracy {
+    /// Share within 1 px and within 3 px of the map's disparity.
+    pub within_1px: f64,
+    pub within_3px: f64,
+    /// Pixels with a known disparity under those flies.
+    pub pixels: usize,
+}
+
+/// Flies [`Accuracy`] looks at (the paper's figures draw the best 250).
+pub const ACCURACY_FLIES: usize = 250;
+
+impl Accuracy {
+    /// `run`'s flies against `truth`; `None` when none of them is at a pixel it knows.
+    pub fn of(run: &Replay, truth: &flyd_core::dataset::DisparityMap) -> Option<Self> {
+        let pop = run.perception.engine().population();
+        let max = run.settings.perception.obstacle.max_ambiguity;
+        let mut unique: Vec<usize> = (0..pop.len())
+            .filter(|&i| {
+                pop.raw_fitness[i] > 0.0
+                    && run.ambiguity.get(i).is_some_and(|&a| f64::from(a) <= max)
+            })
+            .collect();
+        unique.sort_by(|&a, &b| pop.raw_fitness[b].total_cmp(&pop.raw_fitness[a]));
+        unique.truncate(ACCURACY_FLIES);
+        let (mut n, mut one, mut three) = (0usize, 0usize, 0usize);
+        let mut seen = std::collections::HashSet::new();
+        for i in unique {
+            let (u, v) = (pop.u_left[i].round(), pop.v_left[i].round());
+            // Each pixel once (a negative or NaN coordinate is outside the map).
+            let inside = u >= 0.0 && v >= 0.0;
+            if !inside || !seen.insert((u as usize, v as usize)) {
+                continue;
+            }
+            let Some(t) = truth.get(u as usize, v as usize) else {
+                continue;
+            };
+            let error = (f64::from(pop.u_left[i] - pop.u_right[i]) - f64::from(t)).abs();
+            n += 1;
+            one += usize::from(error <= 1.0);
+            three += usize::from(error <= 3.0);
+        }
+        (n > 0).then(|| Self {
+            within_1px: one as f64 / n as f64,
+            within_3px: three as f64 / n as f64,
+            pixels: n,
+        })
+    }
 }
 
 /// Whether a run meets its item's label.

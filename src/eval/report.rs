@@ -29,6 +29,9 @@ pub struct ItemReport {
     /// median and largest.
     pub distance_error_median: Option<f64>,
     pub distance_error_max: Option<f64>,
+    /// Of the runs against a `truth`: the share of flies within 1 px, lowest and median.
+    pub within_1px_min: Option<f64>,
+    pub within_1px_median: Option<f64>,
     /// Why the runs that failed did.
     pub failures: Vec<String>,
     pub runs: Vec<Outcome>,
@@ -73,7 +76,14 @@ impl ItemReport {
             _ => Vec::new(),
         };
         errors.sort_by(f64::total_cmp);
+        let mut within: Vec<f64> = runs
+            .iter()
+            .filter_map(|r| r.accuracy.map(|a| a.within_1px))
+            .collect();
+        within.sort_by(f64::total_cmp);
         Self {
+            within_1px_min: within.first().copied(),
+            within_1px_median: within.get(within.len() / 2).copied(),
             name: item.name.clone(),
             label: item.clone(),
             ok,
@@ -154,17 +164,21 @@ impl fmt::Display for Report {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{:26} {:14} {:>7} {:>6} {:>7} {:>7} {:>11}  commands per seed; distances",
-            "item", "label", "ok", "misses", "f.SLOW", "f.STOP", "dist.err"
+            "{:26} {:14} {:>7} {:>6} {:>7} {:>7} {:>11} {:>11}  commands per seed; distances",
+            "item", "label", "ok", "misses", "f.SLOW", "f.STOP", "dist.err", "1px min/med"
         )?;
         for i in &self.items {
             let err = match (i.distance_error_median, i.distance_error_max) {
                 (Some(m), Some(x)) => format!("{m:.2}/{x:.2}"),
                 _ => "-".into(),
             };
+            let acc = match (i.within_1px_min, i.within_1px_median) {
+                (Some(a), Some(m)) => format!("{:.0}/{:.0}%", 100.0 * a, 100.0 * m),
+                _ => "-".into(),
+            };
             writeln!(
                 f,
-                "{:26} {:14} {:>3}/{:<3} {:>6} {:>7} {:>7} {:>11}  {}  {}",
+                "{:26} {:14} {:>3}/{:<3} {:>6} {:>7} {:>7} {:>11} {:>11}  {}  {}",
                 i.name,
                 i.label.expect.name(),
                 i.ok,
@@ -173,6 +187,7 @@ impl fmt::Display for Report {
                 percent(i.false_slow_rate),
                 percent(i.false_stop_rate),
                 err,
+                acc,
                 i.commands(),
                 i.detail()
             )?;

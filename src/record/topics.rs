@@ -162,6 +162,11 @@ pub struct PairEvent {
     pub left_ns: u64,
     pub right_ns: u64,
     pub predict: Option<PredictEvent>,
+    /// The right image's row correction it was prepared with, pixels (the calibration's,
+    /// or what the daemon measured: `flyd::daemon::rows`); absent in recordings made before
+    /// the daemon corrected rows (the configuration's value then).
+    #[serde(default)]
+    pub right_row_shift_px: Option<f64>,
 }
 
 impl PairEvent {
@@ -171,6 +176,7 @@ impl PairEvent {
         ("left_ns", INT),
         ("right_ns", INT),
         ("predict", OPT_OBJ),
+        ("right_row_shift_px", OPT_NUM),
     ];
 }
 

@@ -49,7 +49,7 @@ use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
-use flyd_core::rectification::{RowOffset, max_disparity, residual_row_offset};
+use flyd_core::rectification::{RowCorrection, RowOffset, max_disparity, residual_row_offset};
 use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorMonitor, SensorVerdict};
 use flyd_core::status::FaultBits;
 use image::RgbImage;
@@ -176,65 +176,6 @@ pub struct Settings {
     /// Measure the residual of a rectified pair's rows on the first frame and correct it
     /// (`rectification.measure`; a rig that is not rectified is not measured).
     pub measure_rows: bool,
-}
-
-/// The right image's row correction a replay applied: the calibration's, or the calibration's
-/// plus the residual measured on the first frame (`flyd_core::rectification`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct RowCorrection {
-    /// The calibration's (`rectification.right_row_offset_px`).
-    pub prior_px: f64,
-    /// What the first frame's corners measured on top of it, when they did.
-    pub measured_px: Option<f64>,
-    /// Corners matched for that measure.
-    pub corners: usize,
-    /// The correction every right frame got.
-    pub applied_px: f64,
-    /// "measured": the prior plus the measure; "rig": the prior (why: `refused`).
-    pub source: &'static str,
-    /// Why the measure was not applied: "off" (`rectification.measure = false`), "not
-    /// rectified", "too few corners", "beyond the range" (at the edge of the offsets tried,
-    /// or the sum beyond `MAX_RIGHT_ROW_OFFSET`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub refused: Option<&'static str>,
-}
-
-impl RowCorrection {
-    /// The correction for a right image calibrated at `prior` px, given what the first frame
-    /// measured (`None`: too few corners) and whether measuring is on (`measure`) for this
-    /// rig (`rectified`).
-    pub fn decide(prior: f64, measure: bool, rectified: bool, measured: Option<RowOffset>) -> Self {
-        let rig = |refused, measured: Option<RowOffset>| Self {
-            prior_px: prior,
-            measured_px: measured.map(|m| m.residual_px),
-            corners: measured.map_or(0, |m| m.corners),
-            applied_px: prior,
-            source: "rig",
-            refused: Some(refused),
-        };
-        if !measure {
-            return rig("off", None);
-        }
-        if !rectified {
-            return rig("not rectified", None);
-        }
-        let Some(m) = measured else {
-            return rig("too few corners", None);
-        };
-        let sum = prior + m.residual_px;
-        if m.at_range_edge || !sum.is_finite() || sum.abs() > flyd_core::calib::MAX_RIGHT_ROW_OFFSET
-        {
-            return rig("beyond the range", Some(m));
-        }
-        Self {
-            prior_px: prior,
-            measured_px: Some(m.residual_px),
-            corners: m.corners,
-            applied_px: sum,
-            source: "measured",
-            refused: None,
-        }
-    }
 }
 
 /// Generations the daemon runs per frame of a video at `fps` that changes every frame (a
@@ -512,6 +453,7 @@ impl ReplayRecording {
                     yaw_rate: m.yaw_rate,
                     dt,
                 }),
+                right_row_shift_px: Some(frame.right.row_shift()),
             },
         );
     }

@@ -75,6 +75,9 @@ pub struct RecordedSummary {
     pub first_stop_s: Option<f64>,
     /// Commands as `t_s:COMMAND` where the command changed.
     pub changes: Vec<String>,
+    /// The right image's row correction over the recording: (seconds, pixels) at the first
+    /// pair and wherever the daemon changed it (`flyd::daemon::rows`).
+    pub row_corrections: Vec<(f64, f64)>,
     /// `None`: reproduced bit for bit.
     pub divergence: Option<Divergence>,
 }
@@ -159,6 +162,7 @@ pub fn replay(
         commands_identical: 0,
         first_stop_s: None,
         changes: Vec::new(),
+        row_corrections: Vec::new(),
         divergence: None,
     };
     let start = events
@@ -231,6 +235,7 @@ fn replay_perception(
     let mut exhausted = false;
     // The newest pair's time: when the replayed flies are recorded.
     let mut last_at = Duration::ZERO;
+    let mut last_shift = None;
     while next < pairs.len() {
         let pair = pairs[next];
         let wanted = [pair.left_ns, pair.right_ns];
@@ -282,7 +287,18 @@ fn replay_perception(
             if let Some(frame) = pending[side as usize].pop_front() {
                 let image = match side {
                     Side::Left => &mut stereo.left,
-                    Side::Right => &mut stereo.right,
+                    Side::Right => {
+                        // The row correction the daemon prepared this pair's right image with.
+                        let px = pair.right_row_shift_px.unwrap_or(right_row_offset_px);
+                        if last_shift != Some(px) {
+                            last_shift = Some(px);
+                            summary
+                                .row_corrections
+                                .push((secs_after(pair.left_ns, start), px));
+                        }
+                        stereo.right.set_row_shift(px);
+                        &mut stereo.right
+                    }
                 };
                 match frame.format {
                     Some(format) => image.prepare(format, &frame.pixels)?,

@@ -164,7 +164,7 @@ pub struct Summary {
     /// The right image's row correction, and what is left of the rows' misalignment.
     pub row_offset: RowOffsetReport,
     /// How that correction was chosen: the rig's, or measured on the first frame.
-    pub row_correction: Option<super::RowCorrection>,
+    pub row_correction: Option<flyd_core::rectification::RowCorrection>,
     /// The state at the last generation of each frame, when there is more than one frame.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub per_frame: Vec<FrameReport>,

@@ -225,7 +225,7 @@ impl PreparedImage {
             raw: RawStats::default(),
             pixels: None,
             row_shift_q8: 0,
-            shift_scratch: Vec::new(),
+            shift_scratch: vec![0; w * BPP],
         })
     }
 
@@ -235,13 +235,19 @@ impl PreparedImage {
     /// `px` is clamped to +-[`MAX_ROW_SHIFT`] and kept to 1/256 px; 0 (the default) leaves
     /// the pixels as they are.
     pub fn with_row_shift(mut self, px: f64) -> Self {
-        let px = if px.is_finite() { px } else { 0.0 };
-        self.row_shift_q8 = (px.clamp(-MAX_ROW_SHIFT, MAX_ROW_SHIFT) * 256.0).round() as i32;
-        self.shift_scratch = vec![0; self.width * BPP];
+        self.set_row_shift(px);
         self
     }
 
-    /// Makes this image a copy of `other`'s prepared pixels (colour, gradient, channels),
+    /// [`Self::with_row_shift`] on an image in use, for the prepares after it (no allocation:
+    /// a capture thread applies a new correction with it).
+    pub fn set_row_shift(&mut self, px: f64) {
+        let px = if px.is_finite() { px } else { 0.0 };
+        self.row_shift_q8 = (px.clamp(-MAX_ROW_SHIFT, MAX_ROW_SHIFT) * 256.0).round() as i32;
+    }
+
+    /// Makes this image a copy of `other`'s prepared pixels (colour, gradient, channels, and
+    /// the row shift they were prepared with),
     /// without allocating, when both are the same size; returns whether it did. (What a
     /// worker off the real-time path measures on.)
     pub fn copy_from(&mut self, other: &PreparedImage) -> bool {
@@ -251,6 +257,7 @@ impl PreparedImage {
         self.data.copy_from_slice(&other.data);
         self.channels = other.channels;
         self.raw = other.raw;
+        self.row_shift_q8 = other.row_shift_q8;
         true
     }
 
@@ -471,7 +478,7 @@ impl PreparedImage {
             shift_scratch,
             ..
         } = self;
-        // Sized by `with_row_shift`; the lengths below hold for any image of this size.
+        // Sized by `new` (one padded row); the lengths below hold for any image of this size.
         shift_scratch.resize(n, 0);
         // Blends two rows into the scratch (straight-line code the compiler vectorises).
         let blend = |out: &mut [u8], p: &[u8], q: &[u8]| {

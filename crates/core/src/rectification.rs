@@ -49,6 +49,65 @@ pub struct RowOffset {
     pub at_range_edge: bool,
 }
 
+/// The right image's row correction to apply: the calibration's (the prior), or the prior plus
+/// the residual measured on the images. `flyd replay` decides it on the first frame, the
+/// daemon on each measure of its `flyd-rows` worker.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct RowCorrection {
+    /// The calibration's (`rectification.right_row_offset_px`).
+    pub prior_px: f64,
+    /// What the first frame's corners measured on top of it, when they did.
+    pub measured_px: Option<f64>,
+    /// Corners matched for that measure.
+    pub corners: usize,
+    /// The correction every right frame got.
+    pub applied_px: f64,
+    /// "measured": the prior plus the measure; "rig": the prior (why: `refused`).
+    pub source: &'static str,
+    /// Why the measure was not applied: "off" (`rectification.measure = false`), "not
+    /// rectified", "too few corners", "beyond the range" (at the edge of the offsets tried,
+    /// or the sum beyond `MAX_RIGHT_ROW_OFFSET`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refused: Option<&'static str>,
+}
+
+impl RowCorrection {
+    /// The correction for a right image calibrated at `prior` px, given what the first frame
+    /// measured (`None`: too few corners) and whether measuring is on (`measure`) for this
+    /// rig (`rectified`).
+    pub fn decide(prior: f64, measure: bool, rectified: bool, measured: Option<RowOffset>) -> Self {
+        let rig = |refused, measured: Option<RowOffset>| Self {
+            prior_px: prior,
+            measured_px: measured.map(|m| m.residual_px),
+            corners: measured.map_or(0, |m| m.corners),
+            applied_px: prior,
+            source: "rig",
+            refused: Some(refused),
+        };
+        if !measure {
+            return rig("off", None);
+        }
+        if !rectified {
+            return rig("not rectified", None);
+        }
+        let Some(m) = measured else {
+            return rig("too few corners", None);
+        };
+        let sum = prior + m.residual_px;
+        if m.at_range_edge || !sum.is_finite() || sum.abs() > crate::calib::MAX_RIGHT_ROW_OFFSET {
+            return rig("beyond the range", Some(m));
+        }
+        Self {
+            prior_px: prior,
+            measured_px: Some(m.residual_px),
+            corners: m.corners,
+            applied_px: sum,
+            source: "measured",
+            refused: None,
+        }
+    }
+}
+
 /// The disparity (whole pixels, 1..=512) of the nearest depth `min_depth` searched on `rig`:
 /// how far along its row [`residual_row_offset`] matches a corner.
 pub fn max_disparity(rig: &StereoRig, min_depth: f64) -> u32 {
@@ -331,5 +390,29 @@ mod tests {
             residual_row_offset(&StereoFrame::new(tiny(), tiny(), 1), 32),
             None
         );
+    }
+
+    #[test]
+    fn a_measure_is_applied_on_top_of_the_prior_unless_it_cannot_be_trusted() {
+        let m = |px: f64, corners: usize, at_range_edge: bool| RowOffset {
+            residual_px: px,
+            corners,
+            at_range_edge,
+        };
+        let c = RowCorrection::decide(0.5, true, true, Some(m(-0.44, 80, false)));
+        assert_eq!((c.source, c.refused), ("measured", None));
+        assert!((c.applied_px - 0.06).abs() < 1e-9, "{c:?}");
+        for (measure, rectified, measured, why) in [
+            (false, true, Some(m(-0.44, 80, false)), "off"),
+            (true, false, Some(m(-0.44, 80, false)), "not rectified"),
+            (true, true, None, "too few corners"),
+            (true, true, Some(m(1.5, 80, true)), "beyond the range"),
+            (true, true, Some(m(1.6, 80, false)), "beyond the range"),
+            (true, true, Some(m(f64::NAN, 80, false)), "beyond the range"),
+        ] {
+            let c = RowCorrection::decide(0.5, measure, rectified, measured);
+            assert_eq!((c.source, c.refused), ("rig", Some(why)), "{c:?}");
+            assert_eq!(c.applied_px, 0.5, "the prior stands: {c:?}");
+        }
     }
 }
