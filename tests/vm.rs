@@ -1451,3 +1451,237 @@ fn flyd_records_through_v4l2_and_the_recording_replays_to_the_commands_seen_on_v
         sent.len()
     ));
 }
+
+/// The Debian package, built by scripts/package (cargo-deb) for the systemd scenario.
+fn debian_package() -> std::path::PathBuf {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let out = util::output_ok(
+        std::process::Command::new(Path::new(root).join("scripts/package")).current_dir(root),
+        "scripts/package",
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let path = std::path::PathBuf::from(stdout.lines().last().unwrap_or_default().trim());
+    assert!(path.is_file(), "scripts/package printed:\n{stdout}");
+    path
+}
+
+/// flyd as its package installs it, under a real systemd as PID 1 (issue 34): the Debian 12
+/// guest of tests/vm/systemd, the package installed with apt, the VM configuration in
+/// /etc/flyd, the feeder playing pedestrian-steps-in (tests/vm/scenarios/systemd_flyd.sh).
+/// `FLYD_VM_SYSTEMD_DROPIN=FILE.conf` installs FILE as a drop-in for flyd.service first: with
+/// `WatchdogSec=0` in it, this test fails (the SIGSTOPped flyd is never restarted).
+#[test]
+fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_removes_it() {
+    let vm = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/vm");
+    let mut scenario = Scenario::new("systemd_flyd")
+        .under_systemd()
+        .bin(guest_tool("flyd-feeder"))
+        .bin(vm.join("scenarios/flyd_common.sh"))
+        .input(vm.join("config/flyd-vm.toml"))
+        .input(vm.join("config/mock-rig-320x240.toml"))
+        .input(debian_package())
+        .timeout(Duration::from_secs(600));
+    if let Some(dropin) = std::env::var_os("FLYD_VM_SYSTEMD_DROPIN") {
+        scenario = scenario.input(dropin);
+    }
+    let r = run_flyd(scenario);
+
+    // Installed: the unit loaded from the package, neither enabled nor started.
+    let installed = r.run.result("installed");
+    assert_eq!(installed["enabled"], "disabled", "{installed:?}");
+    assert_eq!(installed["active"], "inactive", "{installed:?}");
+    assert!(
+        installed["unit"].ends_with("/lib/systemd/system/flyd.service"),
+        "{installed:?}"
+    );
+    assert_eq!(
+        installed["version"],
+        format!("{}-1", env!("CARGO_PKG_VERSION"))
+    );
+
+    // Started: `systemctl start` returned with the unit running (Type=notify: only after
+    // READY=1), flyd's status text set through sd_notify, the watchdog armed.
+    let start = r.run.result("start");
+    assert_eq!(
+        (start["active"].as_str(), start["substate"].as_str()),
+        ("active", "running")
+    );
+    let show = r.run.read_to_string("show-start.txt");
+    for line in ["Type=notify", "WatchdogUSec=2s", "NotifyAccess=main"] {
+        assert!(
+            show.lines().any(|l| l == line),
+            "no {line} in show-start.txt"
+        );
+    }
+    let status_text = show
+        .lines()
+        .find_map(|l| l.strip_prefix("StatusText="))
+        .unwrap_or_default();
+    assert!(!status_text.is_empty(), "no STATUS= from flyd at start");
+    assert!(
+        !r.logged("ready: both cameras deliver").is_empty(),
+        "flyd never logged that it sent READY=1"
+    );
+
+    // The bus: every CRC valid, counters +1 mod 15 except across the watchdog restart, the
+    // stop before the upgrade and the upgrade's restart (a new flyd counts from 0; the
+    // upgrade's stop-start leaves the bus quiet for 0.45-0.76 s under TCG).
+    let (bus, gaps) = r.check_bus_with_gaps(0.3);
+    assert!(
+        gaps >= 3,
+        "expected the bus to go quiet around the restarts: {gaps} gaps"
+    );
+
+    // The pedestrian (scenario frame 30): no STOP before, STOP within 10 camera frames.
+    let appears = r.frame_time(30);
+    let (_, sigstop) = r.event("sigstop");
+    // The feeder's timeline starts at scenario frame 0, once flyd is running (lead-in before).
+    let running = r.frame_time(0);
+    let commands = r.messages("FLYD_Command");
+    assert!(
+        !commands
+            .iter()
+            .any(|f| f.time >= running && f.time < appears && f.label("Command") == "STOP"),
+        "STOP before the pedestrian appeared:\n{}",
+        r.story()
+    );
+    let first_stop = commands
+        .iter()
+        .find(|f| f.time >= appears && f.time < sigstop && f.label("Command") == "STOP")
+        .unwrap_or_else(|| panic!("no STOP after the pedestrian:\n{}", r.story()));
+    let reaction = r.frames_between(appears, first_stop.time);
+    assert!(
+        reaction <= 10,
+        "STOP {reaction} frames after the pedestrian"
+    );
+
+    // systemd-analyze security on the running unit.
+    let security = r.run.read_to_string("security.txt");
+    let exposure: f64 = security
+        .lines()
+        .find_map(|l| l.split("Overall exposure level for flyd.service: ").nth(1))
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no exposure level in security.txt:\n{security}"));
+    assert!(exposure <= 2.0, "exposure {exposure}");
+
+    // The watchdog: the SIGSTOPped flyd killed by systemd's watchdog and restarted, and its
+    // frames back on the bus after the restart.
+    let watchdog = r.run.result("watchdog");
+    assert_eq!(watchdog["restarted"], "yes", "{watchdog:?}");
+    let (n0, n1): (u32, u32) = (
+        watchdog["nrestarts_before"].parse().unwrap(),
+        watchdog["nrestarts"].parse().unwrap(),
+    );
+    assert!(n1 > n0, "NRestarts {n0} -> {n1}");
+    let journal: Vec<serde_json::Value> = r
+        .run
+        .read_to_string("journal.json")
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("journalctl -o json line"))
+        .collect();
+    let message = |e: &serde_json::Value| e["MESSAGE"].as_str().unwrap_or_default().to_string();
+    assert!(
+        journal.iter().any(|e| e["SYSLOG_IDENTIFIER"] == "systemd"
+            && message(e).contains("flyd.service: Watchdog timeout")),
+        "no watchdog timeout in the journal"
+    );
+    let (restart_frame, _) = r.event("restarted");
+    let (_, again) = r.event("running-again");
+    let (_, sigterm) = r.event("sigterm");
+    // Frozen, flyd sends nothing: from just after SIGSTOP until the watchdog (2 s) could
+    // have fired, not one frame.
+    let during_stop = r
+        .frames
+        .iter()
+        .filter(|f| {
+            f.message.starts_with("FLYD_") && f.time > sigstop + 0.5 && f.time < sigstop + 2.0
+        })
+        .count();
+    assert_eq!(during_stop, 0, "frames from a SIGSTOPped flyd");
+    let resumed = commands
+        .iter()
+        .filter(|f| f.time >= again && f.time < sigterm)
+        .count();
+    assert!(resumed > 20, "{resumed} commands after the restart");
+
+    // The journal holds flyd's own JSON events, from each of its processes: level, message,
+    // its structured values.
+    let flyd_entries: Vec<(String, serde_json::Value)> = journal
+        .iter()
+        .filter(|e| e["_SYSTEMD_UNIT"] == "flyd.service" && e["SYSLOG_IDENTIFIER"] == "flyd")
+        .map(|e| {
+            let m = message(e);
+            let v = serde_json::from_str(&m)
+                .unwrap_or_else(|err| panic!("flyd journal entry not JSON ({err}): {m}"));
+            (e["_PID"].as_str().unwrap_or_default().to_string(), v)
+        })
+        .collect();
+    let pids: std::collections::BTreeSet<&str> =
+        flyd_entries.iter().map(|(p, _)| p.as_str()).collect();
+    assert!(pids.len() >= 3, "flyd processes in the journal: {pids:?}");
+    assert!(flyd_entries.iter().all(|(_, v)| v["level"].is_string()
+        && v["message"].is_string()
+        && v["timestamp"].is_string()));
+    let stats = flyd_entries
+        .iter()
+        .rfind(|(_, v)| v["message"] == "stats" && v["generations_per_sec"].is_number())
+        .unwrap_or_else(|| panic!("no stats event with its numbers in the journal"));
+    let ready = flyd_entries
+        .iter()
+        .filter(|(_, v)| {
+            v["message"]
+                .as_str()
+                .is_some_and(|m| m.starts_with("ready: both cameras"))
+                && v["generation"].is_number()
+        })
+        .count();
+    assert!(ready >= 3, "{ready} ready events with their generation");
+
+    // Stopped: SHUTDOWN status frame, exit 0, nothing from flyd until the upgrade's start.
+    // ExecMainStatus: flyd's exit status; Result=success: no timeout, no signal, no core.
+    let stop = r.run.result("flyd");
+    assert_eq!(
+        (stop["exit"].as_str(), stop["result"].as_str()),
+        ("0", "success"),
+        "{stop:?}"
+    );
+    let (_, exited) = r.event("flyd-exited");
+    let (_, upgrade) = r.event("upgrade-start");
+    let statuses = r.messages("FLYD_Status");
+    let last = statuses
+        .iter()
+        .rev()
+        .find(|f| f.time < upgrade)
+        .expect("status frames");
+    assert_eq!(last.label("State"), "SHUTDOWN", "{last:?}");
+    assert!(last.time >= sigterm && last.time <= exited, "{last:?}");
+
+    // Upgrade over itself: the edit kept, no .dpkg-* left, flyd restarted on the new binary.
+    let upgraded = r.run.result("upgrade");
+    assert_eq!(upgraded["kept"], "1", "{upgraded:?}");
+    assert_eq!(upgraded["dpkg_files"], "0", "{upgraded:?}");
+    assert_eq!(upgraded["active"], "active", "{upgraded:?}");
+    assert_eq!(upgraded["restarted"], "yes", "{upgraded:?}");
+
+    // apt remove stops it and keeps the configuration; purge removes the conffiles.
+    let removed = r.run.result("remove");
+    assert_eq!(removed["active"], "inactive", "{removed:?}");
+    assert_eq!(removed["processes"], "0", "{removed:?}");
+    assert_eq!(removed["binary"], "gone", "{removed:?}");
+    assert_eq!(removed["config"], "kept", "{removed:?}");
+    assert_eq!(r.run.result("purge")["conffiles_left"], "0");
+
+    r.run.report(&format!(
+        "systemd PID 1; apt install: unit {} disabled, inactive; systemctl start returned \
+         active/running (READY=1, STATUS={status_text:?}); STOP {reaction} frames after the \
+         pedestrian; security {exposure}; SIGSTOP: watchdog timeout, NRestarts {n0}->{n1} by feeder frame {restart_frame}, \
+         no frame while stopped, {resumed} commands after the restart; journal: {} flyd \
+         JSON events from {} processes (stats: {} gen/s); stop: exit 0, last status SHUTDOWN; \
+         upgrade kept the edit and restarted flyd; remove stopped it; {bus}",
+        installed["unit"],
+        flyd_entries.len(),
+        pids.len(),
+        stats.1["generations_per_sec"],
+    ));
+}

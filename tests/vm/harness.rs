@@ -90,6 +90,46 @@ fn prepared() -> &'static Prepared {
     })
 }
 
+/// The Debian 12 root file system image the systemd scenario boots (tests/vm/systemd/rootfs.sh:
+/// mmdebstrap, cached under target/vm-systemd), built once per test process.
+fn systemd_rootfs() -> &'static Path {
+    static ROOTFS: OnceLock<PathBuf> = OnceLock::new();
+    ROOTFS.get_or_init(|| {
+        prepared(); // .ci/vm-prereqs: mmdebstrap
+        let started = Instant::now();
+        let cache = Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .parent()
+            .expect("CARGO_TARGET_TMPDIR is target/tmp")
+            .join("vm-systemd");
+        let out = Command::new(format!("{HERE}/systemd/rootfs.sh"))
+            .arg(&cache)
+            .output()
+            .unwrap_or_else(|e| panic!("cannot run {HERE}/systemd/rootfs.sh: {e}"));
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success(),
+            "building the systemd guest's root file system failed ({}): the systemd scenario \
+             cannot run.\n{stderr}",
+            out.status
+        );
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let image = stdout
+            .lines()
+            .find_map(|l| l.strip_prefix("ROOTFS="))
+            .unwrap_or_else(|| panic!("rootfs.sh printed no ROOTFS=:\n{stdout}\n{stderr}"));
+        say(&format!(
+            "vm: systemd root file system {image} ready in {:.1} s{}",
+            started.elapsed().as_secs_f64(),
+            if stderr.trim().is_empty() {
+                " (cache warm)".to_string()
+            } else {
+                format!(":\n{}", stderr.trim_end())
+            }
+        ));
+        PathBuf::from(image)
+    })
+}
+
 /// The path of a binary of the `flyd-vm-guest` crate (tests/vm/guest), built on first use with
 /// the profile this test was built with.
 pub fn guest_tool(name: &str) -> PathBuf {
@@ -148,6 +188,7 @@ pub struct Scenario {
     bins: Vec<PathBuf>,
     inputs: Vec<PathBuf>,
     timeout: Duration,
+    rootfs: Option<PathBuf>,
 }
 
 impl Scenario {
@@ -158,6 +199,7 @@ impl Scenario {
             bins: Vec::new(),
             inputs: Vec::new(),
             timeout: Duration::from_secs(180),
+            rootfs: None,
         }
     }
 
@@ -179,6 +221,15 @@ impl Scenario {
     #[allow(dead_code)] // for scenarios longer than the default
     pub fn timeout(mut self, timeout: Duration) -> Scenario {
         self.timeout = timeout;
+        self
+    }
+
+    /// Boots the Debian 12 root file system of [`systemd_rootfs`] with systemd as PID 1: the
+    /// busybox /init sets up as always, then switches root, and flyd-vm-scenario.service runs
+    /// the scenario (tests/vm/systemd). QEMU only.
+    #[allow(dead_code)] // used by the systemd scenario only
+    pub fn under_systemd(mut self) -> Scenario {
+        self.rootfs = Some(systemd_rootfs().to_path_buf());
         self
     }
 
@@ -220,9 +271,20 @@ impl Scenario {
                     .arg(&prepared.kernel)
                     .arg("--base")
                     .arg(&prepared.base);
+                if let Some(rootfs) = &self.rootfs {
+                    cmd.arg("--rootfs").arg(rootfs);
+                }
                 cmd
             }
-            Backend::Native => Command::new(format!("{HERE}/native.sh")),
+            Backend::Native => {
+                assert!(
+                    self.rootfs.is_none(),
+                    "{}: the systemd scenario boots its own root file system: QEMU only \
+                     (FLYD_VM_BACKEND=native cannot run it)",
+                    self.name
+                );
+                Command::new(format!("{HERE}/native.sh"))
+            }
         };
         cmd.arg("--script")
             .arg(&self.script)

@@ -18,12 +18,12 @@ cpio_newc() {
 }
 
 # parse_scenario_args NAME USAGE_LINES ARGS...: the arguments run.sh and native.sh share, into
-# script, results, bins, timeout (default 180), KERNEL and BASE (run.sh's only); a wrong one
+# script, results, bins, timeout (default 180), KERNEL, BASE and ROOTFS (run.sh's only); a wrong one
 # is said on stderr with the usage (lines USAGE_LINES of $0) and exits 2.
 parse_scenario_args() {
     local name="$1" usage="$2"
     shift 2
-    script="" results="" timeout=180 KERNEL="" BASE=""
+    script="" results="" timeout=180 KERNEL="" BASE="" ROOTFS=""
     bins=()
     while [[ $# -gt 0 ]]; do
         case "$1" in
@@ -31,9 +31,13 @@ parse_scenario_args() {
             --results) results="$2"; shift 2 ;;
             --bin) bins+=("$2"); shift 2 ;;
             --timeout) timeout="$2"; shift 2 ;;
-            --kernel | --base)
+            --kernel | --base | --rootfs)
                 [[ "$name" == run.sh ]] || { echo "$name: unknown argument $1" >&2; exit 2; }
-                if [[ "$1" == --kernel ]]; then KERNEL="$2"; else BASE="$2"; fi
+                case "$1" in
+                    --kernel) KERNEL="$2" ;;
+                    --base) BASE="$2" ;;
+                    --rootfs) ROOTFS="$2" ;;
+                esac
                 shift 2 ;;
             *) echo "$name: unknown argument $1" >&2; exit 2 ;;
         esac

@@ -2,7 +2,7 @@
 # Boots one scenario in QEMU (TCG) and leaves its results on the host.
 #
 # Usage: tests/vm/run.sh --script FILE --results DIR [--bin PATH]... [--timeout SECS]
-#                        [--kernel FILE --base FILE]
+#                        [--kernel FILE --base FILE] [--rootfs IMAGE]
 #
 #   --script   guest scenario (sh), run by the guest's /init with lib.sh's environment
 #   --results  host directory shared with the guest as $RESULTS (9p); console.log lands there
@@ -12,6 +12,9 @@
 #   --timeout  hard wall-clock limit for QEMU, default 180 s
 #   --kernel, --base   the KERNEL and BASE that prepare.sh printed; without them run.sh runs
 #              prepare.sh itself (a test driver runs it once for all its boots)
+#   --rootfs   a Debian root file system image (tests/vm/systemd/rootfs.sh): /init switches
+#              to it and systemd runs the scenario as PID 1's service (1.5 GB of guest memory;
+#              the image is opened with snapshot=on, so it is never written)
 #
 # Exit status: the scenario's exit code when the VM ran it to the end and powered off;
 # 124 when the timeout killed QEMU; 125 when the VM stopped before the scenario ended (setup
@@ -46,13 +49,23 @@ done
 cpio_newc "$o" >"$work/initrd"
 cat "$BASE" >>"$work/initrd"
 
+memory=512
+append="console=ttyS0 quiet loglevel=3 panic=-1"
+drive=()
+if [[ -n "$ROOTFS" ]]; then
+    [[ -f "$ROOTFS" ]] || { echo "run.sh: --rootfs $ROOTFS is not a file" >&2; exit 2; }
+    memory=1536
+    append+=" flyd.systemd"
+    drive=(-drive "file=$ROOTFS,format=raw,if=virtio,snapshot=on")
+fi
+
 start=$EPOCHREALTIME
 set +e
 timeout --kill-after=5 "$timeout" qemu-system-x86_64 \
-    -accel tcg -cpu max -m 512 -smp 2 \
+    -accel tcg -cpu max -m "$memory" -smp 2 \
     -nographic -no-reboot -nic none \
-    -kernel "$KERNEL" -initrd "$work/initrd" \
-    -append "console=ttyS0 quiet loglevel=3 panic=-1" \
+    -kernel "$KERNEL" -initrd "$work/initrd" "${drive[@]}" \
+    -append "$append" \
     -virtfs "local,path=$results,mount_tag=results,security_model=none,id=results" \
     </dev/null >"$results/console.log" 2>"$work/qemu.err"
 qemu_status=$?

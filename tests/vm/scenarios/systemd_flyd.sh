@@ -1,0 +1,127 @@
+#!/bin/sh
+# flyd under a real systemd (issue 34): run by flyd-vm-scenario.service in the Debian 12 guest
+# (tests/vm/systemd), with systemd as PID 1. The Debian package (scripts/package, in
+# $RESULTS/input) is installed with apt; the configuration points flyd at the two loopback
+# cameras and vcan0; flyd-feeder plays pedestrian-steps-in. Then, each step recorded for the
+# host (tests/vm.rs):
+#   install     apt install ./flyd_*.deb: the unit loaded, neither enabled nor started
+#   start       systemctl start flyd returns once flyd sent READY=1 (Type=notify)
+#   pedestrian  STOP on vcan0 (candump.log), the feeder past frame 90
+#   security    systemd-analyze security flyd on the running unit
+#   watchdog    flyd SIGSTOPped: systemd's watchdog kills it, Restart= starts it again
+#               (NRestarts grows, a new MainPID), it warms up again and sends again
+#   stop        systemctl stop flyd: SHUTDOWN status frame, exit status 0
+#   upgrade     /etc/flyd/flyd.toml edited, flyd running, the package installed over itself:
+#               the edit kept, flyd restarted on the "new" binary
+#   remove      apt remove stops flyd (config kept); apt purge removes the conffiles
+# A *.conf file in $RESULTS/input is installed as a drop-in for flyd.service first (the host
+# passes FLYD_VM_SYSTEMD_DROPIN: e.g. WatchdogSec=0, to show that the scenario then fails).
+set -eu
+. "$(command -v flyd_common.sh)"
+
+[ "$(cat /proc/1/comm)" = systemd ] || { echo "PID 1 is $(cat /proc/1/comm), not systemd" >&2; exit 1; }
+mkdir -p /tmp/pkg
+cp "$RESULTS"/input/flyd_*_amd64.deb /tmp/pkg/
+deb="$(echo /tmp/pkg/flyd_*_amd64.deb)"
+
+main_pid() { systemctl show -p MainPID --value flyd; }
+restarts() { systemctl show -p NRestarts --value flyd; }
+
+# --- install ------------------------------------------------------------------------------
+apt-get install -y -q --no-install-recommends "$deb" >"$RESULTS/apt-install.log" 2>&1
+vm_result installed "enabled=$(systemctl is-enabled flyd || true)" \
+    "active=$(systemctl is-active flyd || true)" \
+    "unit=$(systemctl show -p FragmentPath --value flyd)" \
+    "version=$(dpkg-query -W -f='${Version}' flyd)"
+for conf in "$RESULTS"/input/*.conf; do
+    [ -f "$conf" ] || continue
+    echo "drop-in for flyd.service: $conf" >&2
+    mkdir -p /etc/systemd/system/flyd.service.d
+    cp "$conf" /etc/systemd/system/flyd.service.d/
+    systemctl daemon-reload
+done
+
+# --- configure: the VM configuration, pointing at the loopback cameras and vcan0 -------------
+flyd_config
+install -m 0644 "$FLYD_DIR/flyd.toml" /etc/flyd/flyd.toml
+install -m 0644 "$FLYD_DIR/mock-rig-320x240.toml" /etc/flyd/mock-rig-320x240.toml
+flyd check-config /etc/flyd/flyd.toml
+
+flyd_candump
+flyd_feeder pedestrian-steps-in
+# flyd's stdout as journald stored it, across restarts: what the frame-counting helpers read.
+journalctl -u flyd -f -o cat --no-pager >"$RESULTS/flyd.log" 2>&1 &
+JOURNAL=$!
+
+# --- start ----------------------------------------------------------------------------------
+flyd_event flyd-started
+systemctl start flyd
+vm_result start "active=$(systemctl is-active flyd)" \
+    "substate=$(systemctl show -p SubState --value flyd)" "pid=$(main_pid)"
+systemctl show flyd >"$RESULTS/show-start.txt"
+flyd_wait_running 90
+flyd_go
+flyd_wait_frame 90 60
+
+# --- security, on the running unit -----------------------------------------------------------
+systemd-analyze security --no-pager flyd >"$RESULTS/security.txt" 2>&1
+
+# --- watchdog ---------------------------------------------------------------------------------
+pid="$(main_pid)"
+before="$(restarts)"
+flyd_event sigstop
+kill -STOP "$pid"
+restarted() {
+    [ "$(restarts)" -gt "$before" ] && [ "$(main_pid)" != 0 ] && [ "$(main_pid)" != "$pid" ] \
+        && [ "$(systemctl is-active flyd)" = active ]
+}
+if ! vm_wait_for 60 restarted; then
+    systemctl status --no-pager flyd >&2 || true
+    vm_result watchdog "restarted=no" "nrestarts=$(restarts)"
+    exit 1
+fi
+flyd_event restarted
+vm_result watchdog "restarted=yes" "nrestarts_before=$before" "nrestarts=$(restarts)" \
+    "old_pid=$pid" "new_pid=$(main_pid)" "result=$(systemctl show -p Result --value flyd)"
+warmed_up_twice() { [ "$(grep -c 'running: warm-up done' "$RESULTS/flyd.log")" -ge 2 ]; }
+vm_wait_for 90 warmed_up_twice
+flyd_event running-again
+_n="$(wc -l <"$RESULTS/timeline.txt")"
+flyd_wait_frame $((_n + 20)) 60
+
+# --- stop -----------------------------------------------------------------------------------
+flyd_event sigterm
+systemctl stop flyd
+flyd_event_after flyd-exited
+systemctl show flyd >"$RESULTS/show-stop.txt"
+vm_result flyd "exit=$(systemctl show -p ExecMainStatus --value flyd)" \
+    "code=$(systemctl show -p ExecMainCode --value flyd)" \
+    "result=$(systemctl show -p Result --value flyd)" \
+    "frames=$(wc -l <"$RESULTS/timeline.txt")" "can_lines=$(wc -l <"$RESULTS/candump.log")"
+
+# --- upgrade over itself, running, with an edited configuration -------------------------------
+echo "# edited on this vehicle (systemd_flyd scenario)" >>/etc/flyd/flyd.toml
+flyd_event upgrade-start
+systemctl start flyd
+pid="$(main_pid)"
+apt-get install -y -q --reinstall "$deb" >"$RESULTS/apt-upgrade.log" 2>&1
+vm_result upgrade "kept=$(grep -c 'edited on this vehicle' /etc/flyd/flyd.toml)" \
+    "dpkg_files=$(find /etc/flyd -name '*.dpkg-*' | wc -l)" \
+    "active=$(systemctl is-active flyd)" \
+    "restarted=$(if [ "$(main_pid)" != "$pid" ]; then echo yes; else echo no; fi)"
+
+# --- removal ----------------------------------------------------------------------------------
+apt-get remove -y -q flyd >"$RESULTS/apt-remove.log" 2>&1
+vm_result remove "active=$(systemctl is-active flyd || true)" \
+    "binary=$(if [ -e /usr/bin/flyd ]; then echo present; else echo gone; fi)" \
+    "config=$(if [ -f /etc/flyd/flyd.toml ]; then echo kept; else echo gone; fi)" \
+    "processes=$(pgrep -c -x flyd || true)"
+apt-get purge -y -q flyd >>"$RESULTS/apt-remove.log" 2>&1
+vm_result purge "conffiles_left=$(ls /etc/flyd/flyd.toml /etc/flyd/rig.toml 2>/dev/null | wc -l)"
+
+journalctl -u flyd -o json --no-pager >"$RESULTS/journal.json"
+kill "$JOURNAL" "$FEEDER" 2>/dev/null || true
+sleep 0.2
+kill "$CANDUMP" 2>/dev/null || true
+wait "$CANDUMP" 2>/dev/null || true
+tail -n 3 "$RESULTS/feeder.log"
