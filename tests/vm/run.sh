@@ -49,7 +49,11 @@ done
 cpio_newc "$o" >"$work/initrd"
 cat "$BASE" >>"$work/initrd"
 
-memory=512
+# 768 MB: the initramfs is unpacked into the guest's memory, and the overlay's release
+# binaries (flyd ~80 MB, flyd-feeder ~70 MB, with debug info) with the base's modules came
+# within a few MB of what 512 MB leaves ("Initramfs unpacking failed: write error" once
+# virtio_blk and ext4 joined the base).
+memory=768
 append="console=ttyS0 quiet loglevel=3 panic=-1"
 drive=()
 if [[ -n "$ROOTFS" ]]; then
