@@ -131,8 +131,9 @@ fi
 #
 # Leaf modules; `modprobe --show-depends` adds what they need, in load order (on 6.1:
 # virtio*, netfs, fscache, 9pnet*, 9p; can, can-raw, can-dev, vcan; mc, videodev,
-# videobuf2-*; virtio_blk, crc16, mbcache, jbd2, ext4). rc-core and cec are not dependencies of videodev in this kernel.
-# virtio_blk and ext4: the systemd scenario's root file system (tests/vm/systemd).
+# videobuf2-*; virtio_blk, crc16, mbcache, jbd2, ext4). rc-core and cec are not dependencies of
+# videodev in this kernel. virtio_blk and ext4: the systemd scenario's root file system
+# (tests/vm/systemd).
 modules=(virtio_pci 9pnet_virtio 9p can-raw vcan videobuf2-vmalloc v4l2loopback virtio_blk ext4)
 declare -A module_params=(
     [v4l2loopback]="devices=2 exclusive_caps=0,0 card_label=flyd-left,flyd-right"
