@@ -144,43 +144,6 @@ impl CanBus for MemoryBus {
 }
 
 // ---------------------------------------------------------------------------------------------
-// RecordingBus
-
-/// A bus that hands every frame it accepted to the recorder (`/can/tx`), at the clock's time.
-pub struct RecordingBus {
-    inner: Box<dyn CanBus>,
-    recorder: Option<crate::record::Recorder>,
-    clock: crate::daemon::SharedClock,
-    sent: u64,
-}
-
-impl RecordingBus {
-    pub fn new(
-        inner: Box<dyn CanBus>,
-        recorder: Option<crate::record::Recorder>,
-        clock: crate::daemon::SharedClock,
-    ) -> Self {
-        Self {
-            inner,
-            recorder,
-            clock,
-            sent: 0,
-        }
-    }
-}
-
-impl CanBus for RecordingBus {
-    fn send(&mut self, id: u32, data: &[u8]) -> Result<(), BusError> {
-        self.inner.send(id, data)?;
-        if let Some(recorder) = &self.recorder {
-            self.sent += 1;
-            recorder.can(true, self.sent, self.clock.now(), id, data);
-        }
-        Ok(())
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
 // CandumpLogBus
 
 /// Writes every frame as a `candump -l` line, flushed at once (a crash loses no frame, and a
@@ -929,7 +892,7 @@ mod tests {
                 Ok(())
             }
         }
-        let mut bus = CandumpLogBus::new(Full, "vcan0", crate::daemon::clock::SystemClock);
+        let mut bus = CandumpLogBus::new(Full, "vcan0", crate::clock::SystemClock);
         let err = bus.send(0x120, &[]).expect_err("disk full");
         assert!(err.is_fatal(), "{err:?}");
     }

@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod bus;
 pub mod capture;
+pub mod clock;
 pub mod config;
 pub mod daemon;
 pub mod eval;
@@ -13,3 +14,4 @@ pub mod mock;
 pub mod record;
 pub mod replay;
 pub mod source;
+pub mod thread;

@@ -14,8 +14,9 @@ use std::time::Duration;
 
 use common::{Frame, GUARD, decode_all};
 use flyd::bus::MemoryBus;
-use flyd::config::{CameraSource, DaemonConfig, FaultCamera, FaultKind, MockFault};
-use flyd::daemon::{self, MonotonicClock, Shutdown, mock_camera::mock_cameras};
+use flyd::config::{CameraSource, DaemonConfig};
+use flyd::daemon::{self, MonotonicClock, Shutdown};
+use flyd::mock::camera::{FaultCamera, FaultKind, MockFault, mock_cameras};
 use flyd_core::can::messages::StatusMsg;
 use flyd_core::decision::Command;
 use flyd_core::sensor::SensorFaults;

@@ -17,11 +17,11 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::clock::{MonotonicClock, SharedClock};
-use super::mock_camera::mock_cameras;
 use super::{DaemonError, Shutdown, run, spawn_named};
 use crate::bus::MemoryBus;
+use crate::clock::{MonotonicClock, SharedClock};
 use crate::config::{CameraSource, DaemonConfig};
+use crate::mock::camera::mock_cameras;
 use flyd_core::can::messages::{CanMessage, CommandMsg};
 use flyd_core::decision::Command;
 

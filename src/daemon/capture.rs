@@ -15,11 +15,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use super::clock::SharedClock;
-use super::pairer::Side;
 use super::ring::FrameWriter;
-use super::threads::Shutdown;
+use crate::clock::SharedClock;
+use crate::source::Side;
 use crate::source::{FrameSource, SourceError};
+use crate::thread::Shutdown;
 use flyd_core::sensor::ImageCheck;
 
 /// What the control thread reads about a camera (lock-free, `Relaxed`: statistics and

@@ -25,15 +25,16 @@ use std::time::Duration;
 
 use crossbeam_channel::{Sender, TrySendError};
 
-use super::clock::SharedClock;
-use super::pairer::{PairOutcome, Pairer, Side};
+use super::pairer::{PairOutcome, Pairer};
 use super::ring::FrameReader;
 use super::shared_motion::SharedMotion;
 use super::snapshot::Snapshot;
-use super::threads::Shutdown;
+use crate::clock::SharedClock;
 use crate::config::EvolutionConfig;
 use crate::record::topics::{PairEvent, PredictEvent};
 use crate::source::FrameMeta;
+use crate::source::Side;
+use crate::thread::Shutdown;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
 use flyd_core::perception::{Perception, RoadEstimate, RoadSource};

@@ -5,15 +5,15 @@ use std::io::{self, BufWriter};
 use std::path::Path;
 
 use super::DaemonError;
-use super::clock::SharedClock;
-use super::mock_camera::mock_cameras;
-use super::mock_vehicle::MockVehicle;
 use crate::bus::{
     CandumpLogBus, CandumpReplayRx, ReopeningBus, RetryPolicy, SocketCanBus, SocketCanRx,
 };
 use crate::capture::{V4l2Config, V4l2Source};
+use crate::clock::SharedClock;
+use crate::clock::SystemClock;
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
-use crate::daemon::clock::SystemClock;
+use crate::mock::camera::mock_cameras;
+use crate::mock::vehicle::MockVehicle;
 use crate::source::FrameSource;
 use flyd_core::can::bus::{CanBus, CanReceiver};
 
@@ -114,7 +114,7 @@ pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Camera
                 // The V4L2 MJPEG path (decode, then prepare), on the mock's frames.
                 for camera in [&mut left, &mut right] {
                     camera.deliver_mjpeg().map_err(|e| {
-                        DaemonError::MockCameras(super::mock_camera::MockCameraError::Mjpeg(e))
+                        DaemonError::MockCameras(crate::mock::camera::MockCameraError::Mjpeg(e))
                     })?;
                 }
             }

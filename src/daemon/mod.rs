@@ -21,8 +21,9 @@
 //! - No thread waits on another one's progress: capture and evolution hand over through
 //!   lock-free slots and `try_send`; the control thread runs on its own periods and reads
 //!   counters. A stalled thread shows up as a fault, never as a stalled pipeline.
-//! - The engine never reads a clock; all time comes from the injected [`clock::Clock`], and
-//!   frame timestamps must be on its timebase (CLOCK_MONOTONIC in production).
+//! - The engine never reads a clock; all time comes from the injected
+//!   [`crate::clock::Clock`], and frame timestamps must be on its timebase (CLOCK_MONOTONIC in
+//!   production).
 //! - Shutdown (the [`Shutdown`] flag, or a mock scenario's end of stream): the control thread
 //!   sends its last command (reason SHUTDOWN) and a status with state SHUTDOWN, then every
 //!   thread stops and is joined; this takes at most one capture poll timeout (<= 250 ms).
@@ -31,13 +32,10 @@
 
 pub mod bench;
 pub mod capture;
-pub mod clock;
 pub mod control;
 pub mod evolution;
 pub mod faults;
 pub mod hardware;
-pub mod mock_camera;
-pub mod mock_vehicle;
 pub mod notify;
 pub mod pairer;
 pub mod ring;
@@ -45,7 +43,6 @@ pub mod rows;
 pub mod shared_motion;
 pub mod snapshot;
 pub mod stats;
-pub mod threads;
 
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -53,29 +50,30 @@ use std::time::Duration;
 
 use thiserror::Error;
 
+pub use crate::clock::{MonotonicClock, SharedClock};
+pub use crate::thread::{Shutdown, spawn_named};
 pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
-pub use clock::{MonotonicClock, SharedClock};
 pub use control::ControlReport;
 pub use hardware::{Cameras, InterfaceLock, lock_interface};
 pub use snapshot::Snapshot;
-pub use threads::{Shutdown, spawn_named};
 
-use crate::bus::RecordingBus;
 use crate::config::{ConfigError, DaemonConfig};
+use crate::record::bus::RecordingBus;
+use crate::source::Side;
 use capture::{CameraHealth, CaptureThread};
 use control::{ControlThread, Inputs, MotionInputs};
 use evolution::{EvolutionCounters, EvolutionThread};
 use faults::{FaultConfig, FaultMonitor};
 use flyd_core::can::bus::{CanBus, CanReceiver};
+use flyd_core::can::motion::MotionMonitor;
 use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
-use flyd_core::motion::MotionMonitor;
 use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::sensor::SensorMonitor;
 use notify::ServiceNotifier;
-use pairer::{Pairer, Side};
+use pairer::Pairer;
 use ring::frame_ring_of;
 
 /// Why the daemon could not start (runtime faults are not errors: see the module docs).
@@ -130,7 +128,7 @@ pub enum DaemonError {
     #[error("CAN input")]
     CanInput(#[from] crate::bus::ReplayLogError),
     #[error("mock cameras")]
-    MockCameras(#[from] mock_camera::MockCameraError),
+    MockCameras(#[from] crate::mock::camera::MockCameraError),
     #[error("camera {device}")]
     CameraConfig {
         device: String,

@@ -19,23 +19,7 @@
 
 use std::time::Duration;
 
-use crate::source::FrameMeta;
-
-/// Which camera.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Side {
-    Left,
-    Right,
-}
-
-impl Side {
-    pub fn name(self) -> &'static str {
-        match self {
-            Side::Left => "left",
-            Side::Right => "right",
-        }
-    }
-}
+use crate::source::{FrameMeta, Side};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairOutcome {

@@ -178,7 +178,7 @@ impl FrameReader {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::daemon::threads::spawn_named;
+    use crate::thread::spawn_named;
     use flyd_core::frame::PixelFormat;
 
     /// A frame that identifies `seq` in a way photometric normalisation keeps: the columns left

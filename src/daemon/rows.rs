@@ -28,7 +28,7 @@ use crossbeam_channel::{Receiver, Sender, TrySendError};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::rectification::{RowCorrection, RowOffset, residual_row_offset};
 
-use super::threads::spawn_named;
+use crate::thread::spawn_named;
 
 /// Time between two measures.
 pub const PERIOD: Duration = Duration::from_secs(60);

@@ -23,6 +23,7 @@
 //! the speed and latency then, every command with its faults, and every CAN frame. The
 //! configuration's text is attached (`config.toml`).
 
+pub mod bus;
 pub mod read;
 pub mod topics;
 pub mod writer;
@@ -33,7 +34,7 @@ use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 
-use crate::daemon::pairer::Side;
+use crate::source::Side;
 use flyd_core::engine::Population;
 use flyd_core::frame::{PixelFormat, Retained};
 use topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, StatsEvent};

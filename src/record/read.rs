@@ -13,7 +13,7 @@ use foxglove::Decode;
 use foxglove::schemas::{CompressedImage, RawImage};
 
 use super::topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, Topic};
-use crate::daemon::pairer::Side;
+use crate::source::Side;
 use flyd_core::frame::PixelFormat;
 
 #[derive(Debug, thiserror::Error)]

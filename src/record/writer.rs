@@ -34,7 +34,7 @@ use foxglove::{Encode, PartialMetadata};
 
 use super::topics::{Encoding, Topic};
 use super::{FLY_FLOATS, Record, RecordCounters, Returns, nanos};
-use crate::daemon::pairer::Side;
+use crate::source::Side;
 use flyd_core::chain::Chain;
 use flyd_core::frame::PixelFormat;
 use flyd_core::geometry::{Camera, StereoRig};
@@ -165,7 +165,7 @@ pub fn spawn_writer(
         w.report.files.push(f.path.clone());
     }
     let handle =
-        crate::daemon::spawn_named("flyd-record", move || w.run(rx)).map_err(WriterError::Spawn)?;
+        crate::thread::spawn_named("flyd-record", move || w.run(rx)).map_err(WriterError::Spawn)?;
     Ok(Writer { handle, live_addr })
 }
 

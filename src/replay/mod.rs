@@ -433,7 +433,7 @@ impl ReplayRecording {
         generation: u64,
         predicted: Option<(flyd_core::motion::VehicleMotion, f64)>,
     ) {
-        use crate::daemon::pairer::Side;
+        use crate::source::Side;
         for (side, image) in [(Side::Left, &frame.left), (Side::Right, &frame.right)] {
             if let Some(frame) = image.pixels() {
                 let size = (image.width(), image.height());

@@ -650,7 +650,7 @@ default_codec!(ObstacleMsg);
 
 /// `VCU_Motion`: the vehicle's own motion, sent by the vehicle (VCU) and received by flyd.
 ///
-/// flyd decodes it ([`crate::motion::MotionMonitor`] checks it further: counter, age,
+/// flyd decodes it ([`super::motion::MotionMonitor`] checks it further: counter, age,
 /// plausibility); it encodes it too, as the mock vehicle and the tests send it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotionMsg {

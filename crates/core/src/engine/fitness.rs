@@ -29,6 +29,7 @@ use super::Population;
 use super::params::{EngineParams, RoadRoi};
 use super::projector::Projector;
 use super::sharing::Grid;
+use super::trunc::trunc;
 use super::windows::{Windows, mask, mask_bits, mask16};
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
 use crate::isa::{Isa, dispatch};
@@ -287,19 +288,6 @@ impl Scratch {
     fn len(&self) -> usize {
         self.lo.len()
     }
-}
-
-/// `x as i32` for the small coordinates of the evaluation. Clamped first (NaN to a bound too),
-/// so the unchecked conversion is always defined; values within +-2^24 are unchanged. Unlike a
-/// saturating `as`, this vectorises.
-#[inline(always)]
-pub(super) fn trunc(x: f32) -> i32 {
-    const BOUND: f32 = 16_777_216.0;
-    // Not `clamp`: it keeps NaN, which must not reach the conversion.
-    #[allow(clippy::manual_clamp)]
-    let x = x.max(-BOUND).min(BOUND);
-    // SAFETY: x is finite and within +-2^24 (the line above; `max` maps NaN to -2^24).
-    unsafe { x.to_int_unchecked::<i32>() }
 }
 
 /// Per-sample SSD under which two windows count as matching: a quarter of what two unrelated

@@ -69,6 +69,7 @@ mod sampler;
 mod select;
 mod sharing;
 mod sweep;
+mod trunc;
 mod uniqueness;
 mod windows;
 

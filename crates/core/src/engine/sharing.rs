@@ -16,7 +16,7 @@
 //! Two passes over the flies plus clearing the counts: no allocation.
 
 use super::Population;
-use super::fitness::trunc;
+use super::trunc::trunc;
 use crate::isa::{Isa, Level, dispatch};
 
 #[derive(Debug, Clone)]

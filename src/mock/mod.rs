@@ -10,6 +10,9 @@
 //! second at 640x480); afterwards a frame pair costs a few milliseconds when the scene is
 //! unchanged and a few more when obstacles moved (`cargo run --release --example mock_timing`).
 
+pub mod camera;
+pub mod vehicle;
+
 use hw_mock::{CameraRenderer, RayCamera, RenderError, Scenario, SensorModel};
 use nalgebra::Point3;
 

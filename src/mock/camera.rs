@@ -21,10 +21,9 @@ use std::time::Duration;
 use hw_mock::Scenario;
 use serde::Deserialize;
 
-use super::clock::SharedClock;
-use super::pairer::Side;
-use crate::mock::{MockError, MockStereo};
-use crate::source::{FrameMeta, FrameSource, SourceError};
+use super::{MockError, MockStereo};
+use crate::clock::SharedClock;
+use crate::source::{FrameMeta, FrameSource, Side, SourceError};
 use flyd_core::frame::{PixelFormat, PreparedImage};
 
 /// What both cameras share.
