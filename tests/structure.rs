@@ -673,7 +673,7 @@ fn upward(krate: &Crate, layers: &[&[&str]]) -> Vec<String> {
 /// The core's layers, lowest first. Values and their arithmetic; frames and the decision; the
 /// engine; the files that set it up (calib: a rig file says the engine's depth range) and the
 /// sensor checks; what reads the engine's flies (perception) or a rig (rectification, ground
-/// truth); the CAN protocol on top: its messages are built from the domain types and its
+/// truth), and the policies the daemon and the replays share (policy); the CAN protocol on top: its messages are built from the domain types and its
 /// monitor checks the vehicle's frames, and nothing below imports it.
 const CORE_LAYERS: &[&[&str]] = &[
     &[
@@ -691,7 +691,7 @@ const CORE_LAYERS: &[&[&str]] = &[
     &["decision", "frame"],
     &["engine"],
     &["calib", "sensor"],
-    &["dataset", "perception", "rectification"],
+    &["dataset", "perception", "policy", "rectification"],
     &["can"],
 ];
 

@@ -60,6 +60,7 @@ use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
 use flyd_core::perception::RoadSource;
+use flyd_core::policy::{InputSource, PeriodInput};
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
@@ -195,7 +196,7 @@ struct Loop {
     latest_at: Option<Duration>,
     /// Highest global warning since the last command (NaN-propagating: a NaN is a fault).
     /// The worst snapshot since the last command (see the module docs).
-    worst_since_command: Option<DecisionInput>,
+    period: PeriodInput,
     faults: FaultBits,
     /// The sensor faults behind CAMERA_ERROR, as the status frame reports them.
     sensor: SensorFaults,
@@ -231,7 +232,7 @@ impl<B: CanBus> ControlThread<B> {
         let mut s = Loop {
             latest: None,
             latest_at: None,
-            worst_since_command: None,
+            period: PeriodInput::default(),
             faults: FaultBits::empty(),
             sensor: SensorFaults::empty(),
             motion_fault: self.motion.as_ref().map(|_| MotionFault::Missing),
@@ -263,7 +264,8 @@ impl<B: CanBus> ControlThread<B> {
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
             let escalation = s
-                .worst_since_command
+                .period
+                .pending()
                 .is_some_and(|input| self.decider.escalates(&input));
             if command_slot.due(now) || escalation {
                 self.send_command(&mut s, now);
@@ -340,10 +342,7 @@ impl<B: CanBus> ControlThread<B> {
         if snapshot.warming_up {
             return;
         }
-        s.worst_since_command = Some(match s.worst_since_command {
-            Some(worst) => worst.worst(input),
-            None => input,
-        });
+        s.period.observe(input);
         if !s.report.reached_running {
             s.report.reached_running = true;
             self.monitor.set_running();
@@ -569,36 +568,19 @@ impl<B: CanBus> ControlThread<B> {
     }
 
     fn send_command(&mut self, s: &mut Loop, now: Duration) {
-        // No trusted snapshot yet: an input that cannot be true in either mode (a fault).
-        let untrusted = DecisionInput {
-            global_warning: f64::NAN,
-            ..DecisionInput::at_speed(None, f64::NAN)
+        // The newest trusted snapshot, asked only when none was taken since the last command.
+        let newest = s.latest.filter(|l| !l.warming_up);
+        let chosen = s
+            .period
+            .choose(|| newest.map(|l| self.input_at(&l, self.clock.now())));
+        let latest = match chosen.from {
+            InputSource::Latest => newest.map(|l| (l.generation, chosen.input)),
+            _ => None,
         };
-        let taken = s.worst_since_command.take();
-        let latest = match taken {
-            Some(_) => None,
-            None => s
-                .latest
-                .filter(|l| !l.warming_up)
-                .map(|l| (l.generation, self.input_at(&l, self.clock.now()))),
-        };
-        let from = match (taken, latest) {
-            (Some(_), _) => InputFrom::Taken,
-            (None, Some(_)) => InputFrom::Latest,
-            (None, None) => InputFrom::Untrusted,
-        };
-        let input = taken
-            .or(latest.map(|(_, input)| input))
-            .unwrap_or(untrusted);
+        let input = chosen.input;
         let warning = input.global_warning;
-        let decision = self.decider.update(
-            DecisionInput {
-                faults: s.faults,
-                ..input
-            },
-            now,
-        );
-        self.record_decision(s, now, from, latest, &input, &decision);
+        let decision = self.decider.update(chosen.with_faults(s.faults), now);
+        self.record_decision(s, now, chosen.from.into(), latest, &input, &decision);
         if decision.changed {
             s.report.decision_changes += 1;
             tracing::info!(

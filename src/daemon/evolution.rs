@@ -38,6 +38,7 @@ use crate::thread::Shutdown;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
 use flyd_core::perception::{Perception, RoadEstimate, RoadSource};
+use flyd_core::policy::{BlindDebounce, Blindness};
 use flyd_core::sensor::{ImageHealth, SensorFaults, SensorMonitor, SensorVerdict};
 
 /// Counters the control thread reads (statistics, `Relaxed`).
@@ -88,8 +89,7 @@ impl EvolutionThread {
         let mut next_turn: Option<Duration> = None;
         // Generations of the current burst still to run back to back.
         let mut burst: u32 = 0;
-        // Consecutive new pairs on which the population matched nowhere.
-        let mut blind_pairs: u32 = 0;
+        let mut blindness = BlindDebounce::new(self.config.blind_matched, self.config.blind_pairs);
         let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
             let mut predicted = None;
@@ -160,19 +160,17 @@ impl EvolutionThread {
                 c.overruns.fetch_add(1, Ordering::Relaxed);
             }
             let warming_up = stats.generation < self.config.warmup_generations;
-            let was_blind = blind_pairs >= self.config.blind_pairs;
-            if warming_up || stats.matched >= self.config.blind_matched {
-                blind_pairs = 0;
-            } else if stats.new_frame {
-                blind_pairs = blind_pairs.saturating_add(1);
-            }
-            let blind = blind_pairs >= self.config.blind_pairs;
-            if blind != was_blind {
+            let Blindness {
+                blind,
+                changed,
+                pairs,
+            } = blindness.observe(warming_up, stats.matched, stats.new_frame);
+            if changed {
                 if blind {
                     tracing::warn!(
                         matched = stats.matched,
                         blind_matched = self.config.blind_matched,
-                        pairs = blind_pairs,
+                        pairs,
                         "perception blind: the stereo pair matches nowhere (a camera delivers \
                          noise or is covered, or the calibration no longer fits): CAMERA_ERROR"
                     );

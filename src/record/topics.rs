@@ -248,6 +248,17 @@ pub enum InputFrom {
     Shutdown,
 }
 
+impl From<flyd_core::policy::InputSource> for InputFrom {
+    fn from(source: flyd_core::policy::InputSource) -> Self {
+        use flyd_core::policy::InputSource;
+        match source {
+            InputSource::Taken => Self::Taken,
+            InputSource::Latest => Self::Latest,
+            InputSource::Untrusted => Self::Untrusted,
+        }
+    }
+}
+
 /// `/flyd/decision`: a command the control thread decided and sent.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DecisionEvent {

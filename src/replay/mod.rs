@@ -49,9 +49,11 @@ use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
+use flyd_core::policy::{BlindDebounce, InputSource, PeriodInput, camera_error};
 use flyd_core::rectification::{RowCorrection, RowOffset, max_disparity, residual_row_offset};
-use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorMonitor, SensorVerdict};
-use flyd_core::status::FaultBits;
+use flyd_core::sensor::{
+    ImageCheck, ImageHealth, SensorConfig, SensorFaults, SensorMonitor, SensorVerdict,
+};
 use image::RgbImage;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -168,6 +170,10 @@ pub struct Settings {
     pub sensor: SensorConfig,
     /// Generations before the decider takes input.
     pub warmup_generations: u64,
+    /// The blind-camera debounce ([`BlindDebounce`], `evolution.blind_matched` and
+    /// `evolution.blind_pairs`): the daemon's, BLIND being CAMERA_ERROR here too.
+    pub blind_matched: f64,
+    pub blind_pairs: u32,
     /// Write what the replay sees and decides to a recording (`flyd replay --record`).
     pub record: Option<crate::record::Recorder>,
     /// The calibration's row correction of the right image
@@ -279,7 +285,10 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let mut row_correction = None;
     let mut checks = [ImageCheck::new(w, h), ImageCheck::new(rw, rh)];
     let mut monitor = SensorMonitor::new(settings.sensor);
-    let (mut health, mut sensor) = ([ImageHealth::default(); 2], SensorVerdict::default());
+    let (mut health, mut verdict) = ([ImageHealth::default(); 2], SensorVerdict::default());
+    let mut blindness = BlindDebounce::new(settings.blind_matched, settings.blind_pairs);
+    // A command each generation: the period's input is that generation's snapshot.
+    let mut period = PeriodInput::default();
     for g in 0..settings.generations {
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
         let mut predicted = None;
@@ -327,7 +336,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 // The same images shown again are a still scene, not a frozen camera.
                 health.iter_mut().for_each(|h| h.unchanged = None);
             }
-            sensor = monitor.observe(&health[0], &health[1]);
+            verdict = monitor.observe(&health[0], &health[1]);
         }
         // On the frames' clock: the generations of a frame spread over its period.
         let time = Duration::from_secs_f64((g as f64 / per_frame as f64) / fps);
@@ -340,20 +349,29 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             Some(m) if !settings.fixed_speed => m.speed.max(0.0),
             _ => settings.speed,
         };
-        let trusted = report.stats.generation > settings.warmup_generations;
-        let input = DecisionInput {
+        let warming_up = report.stats.generation < settings.warmup_generations;
+        let blind = blindness
+            .observe(warming_up, report.stats.matched, new_frame)
+            .blind;
+        let mut sensor = verdict;
+        sensor.faults.set(SensorFaults::BLIND, blind);
+        let faults = camera_error(sensor.faults);
+        let snapshot = DecisionInput {
             global_warning: report.stats.global_warning,
             obstacle: report.tracked.decision_distance(),
-            faults: if sensor.faults.is_empty() {
-                FaultBits::empty()
-            } else {
-                FaultBits::CAMERA_ERROR
-            },
             // The evidence's age on the frames' clock, and a frame until the next.
             latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
             ..DecisionInput::at_speed(None, speed)
         };
-        let decision = trusted.then(|| decider.update(input, time));
+        let input = DecisionInput { faults, ..snapshot };
+        if report.stats.generation > settings.warmup_generations {
+            period.observe(snapshot);
+        }
+        // Before the warm-up ends the replay's decider is not asked (the daemon's takes its
+        // fault path then: the safe command).
+        let chosen = period.choose(|| None);
+        let decision = (chosen.from != InputSource::Untrusted)
+            .then(|| decider.update(chosen.with_faults(faults), time));
         if let Some(rec) = recording.as_mut() {
             let frame_time = Duration::from_secs_f64(wanted as f64 / fps);
             if new_frame {

@@ -41,6 +41,7 @@ use flyd_core::decision::{Decider, DecisionInput};
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::motion::VehicleMotion;
 use flyd_core::perception::Perception;
+use flyd_core::policy::{PeriodInput, untrusted};
 use flyd_core::status::FaultBits;
 
 /// Where a replay first differs from its recording.
@@ -427,7 +428,7 @@ fn replay_decisions(
     summary.commands_recorded = sent.len();
     let mut monitor = config.motion().map(MotionMonitor::new);
     let assumed = config.vehicle.assumed_speed;
-    let mut worst: Option<DecisionInput> = None;
+    let mut period = PeriodInput::default();
     let outcome = |g: u64| {
         outcomes
             .get(usize::try_from(g).unwrap_or(usize::MAX))
@@ -504,50 +505,43 @@ fn replay_decisions(
                     };
                     r.snapshot(p.seq, t, observed, &input);
                 }
-                worst = Some(worst.map_or(input, |w| w.worst(input)));
+                period.observe(input);
             }
             ControlEvent::Decision(d) => {
                 let t = Duration::from_nanos(d.t_ns);
-                let untrusted = DecisionInput {
-                    global_warning: f64::NAN,
-                    ..DecisionInput::at_speed(None, f64::NAN)
-                };
                 let (decision, warning, used) = match d.from {
                     InputFrom::Shutdown => (
                         decider.shutdown(),
                         d.global_warning,
                         DecisionInput {
                             global_warning: d.global_warning,
-                            ..untrusted
+                            ..untrusted()
                         },
                     ),
                     from => {
-                        let input = match from {
-                            InputFrom::Taken => worst.take().unwrap_or(untrusted),
-                            InputFrom::Latest => {
-                                let o = d.latest_generation.and_then(outcome);
-                                match o {
-                                    Some(o) => DecisionInput {
-                                        global_warning: o.global_warning,
-                                        latency: d.latest_latency.unwrap_or(f64::NAN),
-                                        ..DecisionInput::at_speed(
-                                            o.obstacle,
-                                            d.latest_speed.unwrap_or(f64::NAN),
-                                        )
-                                    },
-                                    None => untrusted,
-                                }
-                            }
-                            _ => untrusted,
+                        // The newest snapshot again, as the daemon recorded it.
+                        let latest = || {
+                            d.latest_generation
+                                .and_then(outcome)
+                                .map(|o| DecisionInput {
+                                    global_warning: o.global_warning,
+                                    latency: d.latest_latency.unwrap_or(f64::NAN),
+                                    ..DecisionInput::at_speed(
+                                        o.obstacle,
+                                        d.latest_speed.unwrap_or(f64::NAN),
+                                    )
+                                })
                         };
-                        let decision = decider.update(
-                            DecisionInput {
-                                faults: FaultBits::from_bits(d.faults as u8),
-                                ..input
-                            },
-                            t,
-                        );
-                        (decision, input.global_warning, input)
+                        // The daemon's choice, as it recorded it: a recording that dropped
+                        // snapshots must not make the replay choose otherwise.
+                        let chosen = match from {
+                            InputFrom::Taken => period.choose(|| None),
+                            InputFrom::Latest => PeriodInput::fallback(latest()),
+                            _ => PeriodInput::fallback(None),
+                        };
+                        let faults = FaultBits::from_bits(d.faults as u8);
+                        let decision = decider.update(chosen.with_faults(faults), t);
+                        (decision, chosen.input.global_warning, chosen.input)
                     }
                 };
                 let _ = tx.send_command(&CommandMsg::of(&decision, warning));

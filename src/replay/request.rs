@@ -184,6 +184,8 @@ impl Request {
             fps,
             sensor: config.sensor,
             warmup_generations: config.evolution.warmup_generations,
+            blind_matched: config.evolution.blind_matched,
+            blind_pairs: config.evolution.blind_pairs,
             right_row_shift,
             measure_rows,
         };

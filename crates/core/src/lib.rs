@@ -21,6 +21,7 @@ pub mod geometry;
 pub mod isa;
 pub mod motion;
 pub mod perception;
+pub mod policy;
 pub mod rectification;
 pub mod road;
 pub mod sensor;
