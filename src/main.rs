@@ -642,7 +642,11 @@ fn run_daemon(
     config: &DaemonConfig,
     shutdown: Shutdown,
 ) -> anyhow::Result<daemon::RunReport> {
-    Ok(daemon::run(cameras, bus, clock, config, shutdown)?)
+    // The only place the daemon learns about systemd: its environment, read once.
+    let notifier = daemon::ServiceNotifier::from_env();
+    Ok(daemon::run(
+        cameras, bus, clock, config, shutdown, notifier,
+    )?)
 }
 
 /// `flyd bench --end-to-end [RUNS] [--json]`: the daemon's reaction on hw-mock.

@@ -144,7 +144,14 @@ fn starts(config: &flyd::config::DaemonConfig, what: &str) {
     })
     .expect("spawn");
     let b = bus.clone();
-    let result = daemon::run(cameras, Box::new(b), clock, config, shutdown);
+    let result = daemon::run(
+        cameras,
+        Box::new(b),
+        clock,
+        config,
+        shutdown,
+        daemon::ServiceNotifier::none(),
+    );
     timer.join().expect("timer");
     let report = result.unwrap_or_else(|e| panic!("{what}: accepted, but run failed: {e}"));
     let frames = bus.frames();

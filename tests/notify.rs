@@ -1,6 +1,6 @@
 //! systemd notifications of the real threaded daemon, received on a datagram socket bound here
-//! (the way systemd's NOTIFY_SOCKET works). Its own test binary: it sets NOTIFY_SOCKET and
-//! WATCHDOG_USEC for the whole process before any thread starts.
+//! (the way systemd's NOTIFY_SOCKET works), which the test hands the daemon with a watchdog
+//! interval (what `flyd run` reads from NOTIFY_SOCKET and WATCHDOG_USEC).
 
 mod common;
 
@@ -37,15 +37,12 @@ fn ready_watchdog_only_while_healthy_status_and_stopping() {
     let path = dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&path).expect("bind");
     socket.set_nonblocking(true).expect("nonblocking");
-    // SAFETY: set before any thread of this process starts (this binary has one test).
-    unsafe {
-        std::env::set_var("NOTIFY_SOCKET", &path);
-        std::env::set_var("WATCHDOG_USEC", "100000");
-    }
+    let notifier =
+        flyd::daemon::ServiceNotifier::new(Some(&path), Some(Duration::from_millis(100)));
 
     let mut config = config();
     config.control.can_silence = SILENCE;
-    let d = start(config);
+    let d = start_notifying(config, notifier);
     d.wait_for("RUNNING", |f| {
         statuses(f).iter().any(|s| s.state == State::Running)
     });

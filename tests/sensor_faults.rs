@@ -61,6 +61,7 @@ fn run(faults: &[MockFault]) -> Vec<(f64, Frame)> {
             clock,
             &config,
             Shutdown::new(),
+            daemon::ServiceNotifier::none(),
         )
     })
     .expect("spawn");

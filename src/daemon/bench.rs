@@ -137,6 +137,7 @@ fn one_run(config: &DaemonConfig, scenario: &str) -> Result<Outcome, DaemonError
                 clock,
                 &config,
                 shutdown,
+                super::ServiceNotifier::none(),
             )
         })
         .map_err(|error| DaemonError::Spawn {

@@ -72,7 +72,7 @@ use flyd_core::engine::EngineError;
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
 use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::sensor::SensorMonitor;
-use notify::ServiceNotifier;
+pub use notify::ServiceNotifier;
 use pairer::Pairer;
 use ring::frame_ring_of;
 
@@ -221,13 +221,16 @@ impl<B: CanBus + 'static> From<B> for CanPort {
 /// Runs the daemon on the given hardware until `shutdown` is requested or a camera ends its
 /// stream. See the module docs for the threads and their promises.
 ///
-/// `clock` must be the timebase of the cameras' frame timestamps.
+/// `clock` must be the timebase of the cameras' frame timestamps. `notifier` is where the
+/// systemd notifications go: [`ServiceNotifier::from_env`] under systemd,
+/// [`ServiceNotifier::none`] elsewhere.
 pub fn run(
     cameras: Cameras,
     can: impl Into<CanPort>,
     clock: SharedClock,
     config: &DaemonConfig,
     shutdown: Shutdown,
+    notifier: ServiceNotifier,
 ) -> Result<RunReport, DaemonError> {
     let can = can.into();
     let (width, height) = (config.cameras.width, config.cameras.height);
@@ -379,7 +382,7 @@ pub fn run(
             },
             start,
         ),
-        notifier: ServiceNotifier::from_env(),
+        notifier,
         inputs: Inputs {
             snapshots: snapshot_rx,
             left: health[0].clone(),

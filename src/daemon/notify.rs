@@ -11,9 +11,14 @@
 //!   timeout should not kill it.
 //! - `STOPPING=1` at shutdown.
 //!
-//! Without `NOTIFY_SOCKET` (not under systemd, tests) every call is a no-op. A failing socket is
-//! logged once, never fatal.
+//! Where the notifications go is given to [`crate::daemon::run`]: `flyd run` reads
+//! `NOTIFY_SOCKET` and `WATCHDOG_USEC` once ([`ServiceNotifier::from_env`]), a test names its
+//! own socket ([`ServiceNotifier::new`]) or none ([`ServiceNotifier::none`]: every call is a
+//! no-op, as without `NOTIFY_SOCKET`). A failing socket is logged once, never fatal.
 
+use std::ffi::OsString;
+use std::fmt::Write as _;
+use std::os::unix::net::UnixDatagram;
 use std::time::Duration;
 
 use sd_notify::NotifyState;
@@ -58,6 +63,8 @@ impl WatchdogGate {
 /// The daemon's line to systemd.
 #[derive(Debug)]
 pub struct ServiceNotifier {
+    /// systemd's socket (`NOTIFY_SOCKET`); `None`: not under systemd.
+    socket: Option<OsString>,
     watchdog: Option<WatchdogGate>,
     ready_sent: bool,
     failed_once: bool,
@@ -65,18 +72,55 @@ pub struct ServiceNotifier {
 }
 
 impl ServiceNotifier {
-    /// Reads `NOTIFY_SOCKET` / `WATCHDOG_USEC` (through `sd-notify`) once.
+    /// What systemd says in the environment: `NOTIFY_SOCKET`, and `WATCHDOG_USEC` (with
+    /// `WATCHDOG_PID`, through `sd-notify`), read once.
     pub fn from_env() -> Self {
+        Self::new(
+            std::env::var_os("NOTIFY_SOCKET"),
+            sd_notify::watchdog_enabled(),
+        )
+    }
+
+    /// Notifications to `socket` (a path, or `@name` in the abstract namespace); with a
+    /// `watchdog` interval (`WatchdogSec`), pings every half of it.
+    pub fn new(socket: Option<impl Into<OsString>>, watchdog: Option<Duration>) -> Self {
         Self {
-            watchdog: sd_notify::watchdog_enabled().map(|d| WatchdogGate::new(d / 2)),
+            socket: socket.map(Into::into),
+            watchdog: watchdog.map(|d| WatchdogGate::new(d / 2)),
             ready_sent: false,
             failed_once: false,
             last_extend: None,
         }
     }
 
+    /// Not under systemd: nothing is sent.
+    pub fn none() -> Self {
+        Self::new(None::<OsString>, None)
+    }
+
     fn send(&mut self, states: &[NotifyState]) {
-        if let Err(error) = sd_notify::notify(states)
+        let Some(socket) = &self.socket else {
+            return;
+        };
+        // As `sd_notify::notify` writes them: one state a line, one datagram.
+        let mut message = String::new();
+        for state in states {
+            let _ = writeln!(message, "{state}");
+        }
+        let sent = UnixDatagram::unbound()
+            .and_then(|s| s.connect(socket).map(|()| s))
+            .and_then(|s| s.send(message.as_bytes()))
+            .and_then(|n| {
+                if n == message.len() {
+                    Ok(())
+                } else {
+                    Err(std::io::Error::new(
+                        std::io::ErrorKind::WriteZero,
+                        "incomplete write",
+                    ))
+                }
+            });
+        if let Err(error) = sent
             && !self.failed_once
         {
             tracing::warn!(%error, "systemd notification failed (not retried in the log)");

@@ -265,6 +265,20 @@ pub fn start_receiving(
     control: Arc<SceneControl>,
     rx: Option<MemoryRx>,
 ) -> Running {
+    launch(config, control, rx, daemon::ServiceNotifier::none())
+}
+
+/// As [`start`], notifying systemd through `notifier` (a socket the test binds).
+pub fn start_notifying(config: DaemonConfig, notifier: daemon::ServiceNotifier) -> Running {
+    launch(config, Arc::new(SceneControl::default()), None, notifier)
+}
+
+fn launch(
+    config: DaemonConfig,
+    control: Arc<SceneControl>,
+    rx: Option<MemoryRx>,
+    notifier: daemon::ServiceNotifier,
+) -> Running {
     let _ = tracing_subscriber::fmt()
         .with_test_writer()
         .with_max_level(tracing::Level::INFO)
@@ -280,7 +294,7 @@ pub fn start_receiving(
             tx: Box::new(b),
             rx: rx.map(|rx| Box::new(rx) as Box<dyn flyd_core::can::bus::CanReceiver>),
         };
-        daemon::run(cameras, port, c, &config, s)
+        daemon::run(cameras, port, c, &config, s, notifier)
     })
     .expect("spawn");
     Running {
