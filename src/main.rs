@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand};
-use flyd::replay::{self, Request, Source, Summary};
+use flyd::replay::{self, Request, Source};
 use flyd_core::engine::EngineParams;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -294,28 +294,11 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         generations: args.generations,
         generations_per_frame: args.generations_per_frame,
     };
-    let mut prepared = request.prepare(&config).context("replay")?;
-    let recorder = match &args.record {
-        Some(path) => Some(start_offline_recording(
-            path,
-            prepared.feed.rig(),
-            prepared.settings.params.flies,
-            args.config.as_deref(),
-            &[
-                ("source", "flyd replay"),
-                ("seed", &prepared.settings.params.seed.to_string()),
-            ],
-        )?),
-        None => None,
-    };
-    prepared.settings.record = recorder.as_ref().map(|r| r.recorder.clone());
-    let (run, reaction) = prepared.run(&config).context("replay")?;
-    if let Some(recorder) = recorder {
-        let report = recorder.finish()?;
-        tracing::debug!(messages = report.messages, "replay recorded");
-    }
-    replay::write_outputs(&out, &run)?;
-    let summary = Summary::of(&run, &out, reaction);
+    let prepared = request.prepare(&config).context("replay")?;
+    let record = args.record.as_deref();
+    let summary =
+        replay::command::replay_to(prepared, &config, &out, record, args.config.as_deref())
+            .context("replay")?;
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
     Ok(())
 }
@@ -384,80 +367,15 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// The recorder of `flyd replay --record FILE`.
-fn start_offline_recording(
-    path: &Path,
-    rig: &flyd_core::geometry::StereoRig,
-    flies: usize,
-    config: Option<&Path>,
-    metadata: &[(&str, &str)],
-) -> Result<flyd::record::OfflineRecorder> {
-    let sizes = flyd::record::RecorderSizes {
-        queue: 1024,
-        width: rig.left.width().max(rig.right.width()),
-        height: rig.left.height().max(rig.right.height()),
-        flies,
-        images: true,
-        flies_every: flyd::config::RecordConfig::default().flies_every,
-        fps: 30.0,
-    };
-    let config_text = config.and_then(|p| flyd_core::textfile::read(p).ok());
-    let metadata = metadata
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_string()))
-        .collect();
-    Ok(flyd::record::OfflineRecorder::start(
-        path,
-        rig,
-        sizes,
-        config_text,
-        metadata,
-    )?)
-}
-
-/// `flyd replay --mcap FILE [--config C] [--seed S]`.
+/// `flyd replay --mcap FILE [--config C] [--seed S] [--record OUT]`.
 fn replay_recording(path: &Path, args: &ReplayArgs) -> Result<()> {
-    let mut offline: Option<flyd::record::OfflineRecorder> = None;
-    let mut start = |rig: &flyd_core::geometry::StereoRig, config: &DaemonConfig| {
-        let Some(out) = &args.record else {
-            return Err(flyd::record::WriterError::Spawn(std::io::Error::other(
-                "no --record",
-            )));
-        };
-        let sizes = flyd::record::RecorderSizes {
-            queue: 1024,
-            width: config.cameras.width,
-            height: config.cameras.height,
-            flies: config.engine.flies,
-            images: true,
-            flies_every: config.record.flies_every,
-            fps: config.cameras.fps,
-        };
-        let text = config
-            .file
-            .as_deref()
-            .and_then(|p| flyd_core::textfile::read(p).ok());
-        let metadata = [
-            (
-                "source".to_string(),
-                format!("flyd replay --mcap {}", path.display()),
-            ),
-            ("seed".to_string(), config.engine.seed.to_string()),
-        ]
-        .into_iter()
-        .collect();
-        let r = flyd::record::OfflineRecorder::start(out, rig, sizes, text, metadata)?;
-        let handle = r.recorder.clone();
-        offline = Some(r);
-        Ok(handle)
-    };
-    let record: Option<replay::recorded::StartRecording<'_>> =
-        args.record.is_some().then_some(&mut start as _);
-    let summary = replay::recorded::replay(path, args.config.as_deref(), args.seed, record)
-        .with_context(|| format!("replaying {}", path.display()))?;
-    if let Some(r) = offline {
-        r.finish()?;
-    }
+    let summary = replay::command::replay_recording(
+        path,
+        args.config.as_deref(),
+        args.seed,
+        args.record.as_deref(),
+    )
+    .with_context(|| format!("replaying {}", path.display()))?;
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
     match &summary.divergence {
         None => Ok(()),

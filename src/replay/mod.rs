@@ -26,6 +26,7 @@
 //! This is a command at the edge: it reads files and the clock; perception does neither.
 
 pub mod can_motion;
+pub mod command;
 pub mod feed;
 pub mod output;
 pub mod poses;
