@@ -512,13 +512,11 @@ fn start_recording(
         rotate_bytes: record.rotate_bytes,
         rotate_after: record.rotate_after,
         compression: record.compression,
-        live: live
-            .listen
-            .map(|listen| crate::record::writer::LiveOptions {
-                listen,
-                image_period: std::time::Duration::from_secs_f64(1.0 / live.image_hz),
-                flies_period: std::time::Duration::from_secs_f64(1.0 / live.flies_hz),
-            }),
+        live: live.listen.map(|listen| crate::record::LiveOptions {
+            listen,
+            image_period: std::time::Duration::from_secs_f64(1.0 / live.image_hz),
+            flies_period: std::time::Duration::from_secs_f64(1.0 / live.flies_hz),
+        }),
         config_text,
         metadata,
     };

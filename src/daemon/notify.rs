@@ -81,7 +81,7 @@ impl ServiceNotifier {
         )
     }
 
-    /// Notifications to `socket` (a path, or `@name` in the abstract namespace); with a
+    /// Notifications to `socket` (the path of systemd's datagram socket); with a
     /// `watchdog` interval (`WatchdogSec`), pings every half of it.
     pub fn new(socket: Option<impl Into<OsString>>, watchdog: Option<Duration>) -> Self {
         Self {

@@ -24,7 +24,11 @@
 //! configuration's text is attached (`config.toml`).
 
 pub mod bus;
+mod live;
+mod mcap_file;
+pub mod options;
 pub mod read;
+mod scene;
 pub mod topics;
 pub mod writer;
 
@@ -39,7 +43,8 @@ use flyd_core::engine::Population;
 use flyd_core::frame::{PixelFormat, Retained};
 use topics::{CanEvent, DecisionEvent, PairEvent, PerceptionEvent, StatsEvent};
 
-pub use writer::{RecordOptions, WriterError, spawn_writer};
+pub use options::{LiveOptions, RecordOptions, WriterError};
+pub use writer::spawn_writer;
 
 /// Floats per fly in a [`Record::Flies`] buffer: x, y, z (vehicle frame), fitness, warning.
 pub const FLY_FLOATS: usize = 5;

@@ -17,6 +17,10 @@
 //! Log times are the daemon's clock (CLOCK_MONOTONIC, nanoseconds): an image's is the
 //! kernel's capture timestamp, an event's the moment it happened.
 
+use foxglove::Encode;
+use foxglove::schemas::{
+    CameraCalibration, CompressedImage, FrameTransforms, PointCloud, RawImage, SceneUpdate,
+};
 use serde::{Deserialize, Serialize};
 
 /// Every topic, in the order the channels are declared.
@@ -430,6 +434,21 @@ pub fn hex(data: &[u8]) -> String {
         let _ = write!(out, "{b:02X}");
     }
     out
+}
+
+/// The Foxglove schema of a topic written with one (images, calibrations, flies, transforms,
+/// scene updates).
+pub(super) fn foxglove_schema(topic: Topic) -> foxglove::Schema {
+    let schema = match topic {
+        Topic::LeftImage | Topic::RightImage => RawImage::get_schema(),
+        Topic::LeftCompressed | Topic::RightCompressed => CompressedImage::get_schema(),
+        Topic::LeftCalibration | Topic::RightCalibration => CameraCalibration::get_schema(),
+        Topic::Flies => PointCloud::get_schema(),
+        Topic::Transforms => FrameTransforms::get_schema(),
+        _ => SceneUpdate::get_schema(),
+    };
+    // The well-known schemas always have one.
+    schema.unwrap_or_else(|| foxglove::Schema::new("", "", Vec::new()))
 }
 
 #[cfg(test)]
