@@ -332,14 +332,40 @@ fn absolute(
     Some(out)
 }
 
+/// Where a token is: the brace depth and the inline `mod`s open there (each with the depth
+/// its body starts at).
+#[derive(Default)]
+struct Scope {
+    stack: Vec<(String, usize)>,
+    depth: usize,
+}
+
+impl Scope {
+    /// Follows token `i`: braces, and `mod name {` opening an inline module.
+    fn step(&mut self, toks: &[(String, usize)], i: usize) {
+        match toks[i].0.as_str() {
+            "{" => self.depth += 1,
+            "}" => {
+                self.depth = self.depth.saturating_sub(1);
+                if self.stack.last().is_some_and(|&(_, d)| d == self.depth) {
+                    self.stack.pop();
+                }
+            }
+            "mod" if toks.get(i + 2).is_some_and(|t| t.0 == "{") => {
+                self.stack.push((toks[i + 1].0.clone(), self.depth));
+            }
+            _ => {}
+        }
+    }
+}
+
 /// The imports of one file, from its module `file_mod`: (absolute path, line).
 fn imports(file_mod: &ModPath, src: &str) -> Vec<(Vec<String>, usize)> {
     let toks = tokens(&strip(src));
     // Pass 1: the `use` declarations, each in the module (inline `mod`s included) it is in.
     let mut out = Vec::new();
     let mut aliases: BTreeMap<String, Vec<String>> = BTreeMap::new();
-    let mut stack: Vec<(String, usize)> = Vec::new();
-    let mut depth = 0usize;
+    let mut scope = Scope::default();
     let mut use_spans = Vec::new();
     let mut i = 0;
     let here = |stack: &[(String, usize)]| {
@@ -350,22 +376,13 @@ fn imports(file_mod: &ModPath, src: &str) -> Vec<(Vec<String>, usize)> {
     while i < toks.len() {
         let t = toks[i].0.as_str();
         let prev = if i > 0 { toks[i - 1].0.as_str() } else { "" };
+        scope.step(&toks, i);
         match t {
-            "{" => depth += 1,
-            "}" => {
-                depth = depth.saturating_sub(1);
-                if stack.last().is_some_and(|&(_, d)| d == depth) {
-                    stack.pop();
-                }
-            }
-            "mod" if toks.get(i + 2).is_some_and(|t| t.0 == "{") => {
-                stack.push((toks[i + 1].0.clone(), depth));
-            }
             "use" if prev != "$" && !is_ident_str(prev) || prev == "pub" || prev == ")" => {
                 let start = i;
                 let line = toks[i].1;
                 i += 1;
-                let module = here(&stack);
+                let module = here(&scope.stack);
                 for (path, name) in use_tree(&toks, &mut i, &[]) {
                     if let Some(abs) = absolute(&path, &module, &aliases) {
                         if let Some(name) = name {
@@ -382,8 +399,7 @@ fn imports(file_mod: &ModPath, src: &str) -> Vec<(Vec<String>, usize)> {
         i += 1;
     }
     // Pass 2: paths in the code (`crate::a::b`, `super::x`, `alias::y`), outside `use`s.
-    let mut stack: Vec<(String, usize)> = Vec::new();
-    let mut depth = 0usize;
+    let mut scope = Scope::default();
     let mut spans = use_spans.into_iter().peekable();
     let mut i = 0;
     while i < toks.len() {
@@ -395,19 +411,7 @@ fn imports(file_mod: &ModPath, src: &str) -> Vec<(Vec<String>, usize)> {
             continue;
         }
         let t = toks[i].0.as_str();
-        match t {
-            "{" => depth += 1,
-            "}" => {
-                depth = depth.saturating_sub(1);
-                if stack.last().is_some_and(|&(_, d)| d == depth) {
-                    stack.pop();
-                }
-            }
-            "mod" if toks.get(i + 2).is_some_and(|t| t.0 == "{") => {
-                stack.push((toks[i + 1].0.clone(), depth));
-            }
-            _ => {}
-        }
+        scope.step(&toks, i);
         let starts_path = is_ident_str(t)
             && toks.get(i + 1).is_some_and(|t| t.0 == "::")
             && !(i > 0 && (toks[i - 1].0 == "::" || toks[i - 1].0 == "$"));
@@ -421,7 +425,7 @@ fn imports(file_mod: &ModPath, src: &str) -> Vec<(Vec<String>, usize)> {
                 path.push(toks[j + 1].0.clone());
                 j += 2;
             }
-            if let Some(abs) = absolute(&path, &here(&stack), &aliases) {
+            if let Some(abs) = absolute(&path, &here(&scope.stack), &aliases) {
                 out.push((abs, line));
             }
             i = j;
@@ -673,8 +677,9 @@ fn upward(krate: &Crate, layers: &[&[&str]]) -> Vec<String> {
 /// The core's layers, lowest first. Values and their arithmetic; frames and the decision; the
 /// engine; the files that set it up (calib: a rig file says the engine's depth range) and the
 /// sensor checks; what reads the engine's flies (perception) or a rig (rectification, ground
-/// truth), and the policies the daemon and the replays share (policy); the CAN protocol on top: its messages are built from the domain types and its
-/// monitor checks the vehicle's frames, and nothing below imports it.
+/// truth), and the policies the daemon and the replays share (policy); the CAN protocol on
+/// top: its messages are built from the domain types and its monitor checks the vehicle's
+/// frames, and nothing below imports it.
 const CORE_LAYERS: &[&[&str]] = &[
     &[
         "chain",

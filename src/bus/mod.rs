@@ -1,13 +1,14 @@
 //! The CAN transports: where [`CanBus`](flyd_core::can::bus::CanBus) frames really go.
 //!
 //! - [`SocketCanBus`]: a Linux SocketCAN raw socket (real `can0` or `vcan0`).
-//! - [`CandumpLogBus`]: `candump -l` lines to any [`Write`](std::io::Write) (file, stdout), replayable with
-//!   `canplayer`; for running without CAN hardware.
+//! - [`CandumpLogBus`]: `candump -l` lines to any [`Write`](std::io::Write) (file, stdout),
+//!   replayable with `canplayer`; for running without CAN hardware.
 //! - [`MemoryBus`]: records frames in memory for tests, and can be told to fail.
 //!
-//! And where the vehicle's frames come from ([`CanReceiver`](flyd_core::can::bus::CanReceiver)): [`SocketCanRx`] (a filtered
-//! socket of its own), [`CandumpReplayRx`] (a recorded drive's candump log, replayed on the
-//! clock), [`MemoryRx`] (tests). [`ReopeningBus`] reopens either kind when the device goes.
+//! And where the vehicle's frames come from
+//! ([`CanReceiver`](flyd_core::can::bus::CanReceiver)): [`SocketCanRx`] (a filtered socket of
+//! its own), [`CandumpReplayRx`] (a recorded drive's candump log, replayed on the clock),
+//! [`MemoryRx`] (tests). [`ReopeningBus`] reopens either kind when the device goes.
 //!
 //! Errors are classified into [`BusError`]'s retryable and fatal classes by errno
 //! ([`classify`]); the classes are documented with the trait, in `flyd_core::can::bus`.
