@@ -292,17 +292,10 @@ pub(crate) fn open_error(device: &str, op: &str, e: &io::Error) -> SourceError {
     }
 }
 
+/// CLOCK_MONOTONIC, the buffers' timebase: read in one place ([`crate::clock::MonotonicClock`]).
 fn monotonic_now() -> Duration {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    Duration::new(
-        ts.tv_sec.max(0) as u64,
-        ts.tv_nsec.clamp(0, 999_999_999) as u32,
-    )
+    use crate::clock::{Clock, MonotonicClock};
+    MonotonicClock.now()
 }
 
 // --- Raw ioctls (the device layer; nothing here is reachable without a V4L2 node) ---------------
