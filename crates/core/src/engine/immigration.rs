@@ -151,20 +151,41 @@ impl Immigration {
         // First-stage probes placed so far.
         let mut first = 0;
         // The first immigrants look around what the obstacle stage saw (none when it saw
-        // nothing).
+        // nothing), the next ones scan the corridor (none without one).
         let focused = if self.focus.is_empty() {
             from
         } else {
             from + ctx.params.focus_immigrants()
         };
+        let scanning = match ctx.sampler.corridor {
+            Some(_) => focused + ctx.params.corridor_immigrants(),
+            None => focused,
+        };
         for i in from..pop.len() {
             let focus = i < focused;
-            let p = if focus || (ctx.change.total > 0.0 && rng.next_u32() < guided) {
-                let u = unit_f32(rng.next_u32());
+            let scan = !focus && i < scanning;
+            // A corridor immigrant's block: where a point drawn in the corridor is seen.
+            // Near the vehicle much of the corridor is outside the image: drawn again.
+            let scanned = if scan {
+                (0..SAMPLE_ATTEMPTS).find_map(|_| {
+                    let p = ctx.sampler.corridor_point(rng)?;
+                    let (u, v) = ctx.left.project(p[0], p[1], p[2])?;
+                    Self::block_of(ctx, u, v)
+                })
+            } else {
+                None
+            };
+            let p = if focus
+                || scanned.is_some()
+                || (!scan && ctx.change.total > 0.0 && rng.next_u32() < guided)
+            {
                 // A focused immigrant goes around something seen in the corridor: its block
                 // or a neighbour, its depth give or take FOCUS_DEPTH.
                 let mut around = None;
-                let b = if focus {
+                let b = if let Some(b) = scanned {
+                    b
+                } else if focus {
+                    let u = unit_f32(rng.next_u32());
                     let n = self.focus.len();
                     let (b, inv) = self.focus[((u * n as f32) as usize).min(n - 1)];
                     around = Some(inv);
@@ -176,10 +197,13 @@ impl Immigration {
                     let y = (by + dy).saturating_sub(1).min(rows.saturating_sub(1));
                     y * cols + x
                 } else {
-                    ctx.change.pick(u)
+                    ctx.change.pick(unit_f32(rng.next_u32()))
                 };
                 let ray = Self::strongest_in_block(ctx, rng, b);
                 let range = |xn: f32, yn: f32| {
+                    if let (Some(_), Some(c)) = (scanned, &ctx.sampler.corridor) {
+                        return ctx.sampler.ray_range_in_corridor(xn, yn, c);
+                    }
                     let (lo, hi) = ctx.sampler.ray_range(xn, yn)?;
                     Some(match around {
                         Some(inv) => {
@@ -196,7 +220,13 @@ impl Immigration {
                     Some((xn, yn, inv)) if k > 1 => {
                         // Fewer first-stage probes over a focused immigrant's narrower range
                         // (~8 px of disparity on a car 13.8 m ahead of KITTI's rig).
-                        let n = if around.is_some() { (k / 4).max(2) } else { k };
+                        let n = if around.is_some() {
+                            (k / 4).max(2)
+                        } else if scanned.is_some() {
+                            (k / 2).max(2)
+                        } else {
+                            k
+                        };
                         let base = first;
                         for s in 0..n {
                             // One probe per stratum of the ray's inverse-depth range.
@@ -368,6 +398,20 @@ impl Immigration {
             Sampler::skip_candidate(rng);
         }
         used
+    }
+
+    /// The block of left-image pixel `(u, v)`, if inside the image.
+    fn block_of(ctx: &Context<'_>, u: f32, v: f32) -> Option<usize> {
+        let (cols, rows) = ctx.change.blocks();
+        let (x, y) = ((u + 0.5).floor(), (v + 0.5).floor());
+        if x < 0.0 || y < 0.0 {
+            return None;
+        }
+        let (bx, by) = (
+            x as usize / crate::frame::BLOCK,
+            y as usize / crate::frame::BLOCK,
+        );
+        (bx < cols && by < rows).then_some(by * cols + bx)
     }
 
     /// The left-image ray (normalised coordinates) through the strongest gradient of

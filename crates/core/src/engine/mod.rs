@@ -75,6 +75,7 @@ mod windows;
 
 pub use params::{EngineParams, ParamError, RoadRoi};
 pub use population::Population;
+pub use sampler::Corridor;
 pub use sweep::{Sweep, SweepPoint};
 pub use uniqueness::SHIFTS as AMBIGUITY_SHIFTS;
 
@@ -315,6 +316,12 @@ impl Engine {
     pub fn set_focus(&mut self, pixels: impl Iterator<Item = (f32, f32, f32)>) {
         let (w, h, _, _) = self.frame_size;
         self.immigration.set_focus(pixels, w, h);
+    }
+
+    /// The corridor `corridor_immigrants` immigrants a generation scan from now on
+    /// ([`EngineParams::corridor_immigrants`]); `None`: none.
+    pub fn set_corridor(&mut self, corridor: Option<Corridor>) {
+        self.setup.sampler.corridor = corridor;
     }
 
     pub fn params(&self) -> &EngineParams {

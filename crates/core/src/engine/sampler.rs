@@ -28,6 +28,22 @@ pub(super) struct Sampler {
     /// Vehicle from left camera: `p_vehicle = m * p_cam + c`.
     m: [f32; 9],
     c: [f32; 3],
+    /// The corridor the corridor immigrants scan ([`super::Engine::set_corridor`]).
+    pub(super) corridor: Option<Corridor>,
+}
+
+/// The box ahead of the vehicle where an obstacle counts (vehicle frame, metres; heights above
+/// the road): the corridor immigrants probe depths only where their ray crosses it
+/// ([`super::EngineParams::corridor_immigrants`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Corridor {
+    /// Half-width either side of the vehicle's centre line.
+    pub half_width: f32,
+    /// Lowest and highest point above the road.
+    pub min_height: f32,
+    pub max_height: f32,
+    /// How far ahead.
+    pub max_distance: f32,
 }
 
 /// Attempts to draw a fly visible in both images before giving up on that slot.
@@ -115,6 +131,56 @@ impl Sampler {
             }
         }
         (near < far).then(|| (1.0 / far, 1.0 / near))
+    }
+
+    /// The inverse-depth range of the ray through `(xn, yn)` inside the search range and
+    /// `corridor` (its width, its heights above the road, its length); `None` when the ray
+    /// misses it.
+    pub(super) fn ray_range_in_corridor(
+        &self,
+        xn: f32,
+        yn: f32,
+        corridor: &Corridor,
+    ) -> Option<(f32, f32)> {
+        let heights = Some((corridor.min_height, corridor.max_height));
+        let (lo, hi) = self.ray_range_in(xn, yn, self.inv_depth, heights, self.road)?;
+        let (mut near, mut far) = (1.0 / hi, 1.0 / lo);
+        let along = |row: usize| self.m[row] * xn + self.m[row + 1] * yn + self.m[row + 2];
+        // Across: x(d) = c_x + d k_x within the half-width.
+        let (kx, hw) = (along(0), corridor.half_width);
+        if kx.abs() < 1e-6 {
+            if self.c[0].abs() > hw {
+                return None;
+            }
+        } else {
+            let (a, b) = ((-hw - self.c[0]) / kx, (hw - self.c[0]) / kx);
+            near = near.max(a.min(b));
+            far = far.min(a.max(b));
+        }
+        // Ahead: z(d) = c_z + d k_z no farther than its length.
+        let kz = along(6);
+        if kz > 1e-6 {
+            far = far.min((corridor.max_distance - self.c[2]) / kz);
+        } else if self.c[2] > corridor.max_distance {
+            return None;
+        }
+        (near < far).then(|| (1.0 / far, 1.0 / near))
+    }
+
+    /// A vehicle-frame point uniform in the corridor (across, in height above the road, and
+    /// ahead from the search range's nearest depth); `None` without a corridor.
+    #[inline]
+    pub(super) fn corridor_point<R: Rng>(&self, rng: &mut R) -> Option<[f32; 3]> {
+        let c = self.corridor?;
+        let r = rng.next_u64();
+        let x = lerp((-c.half_width, c.half_width), unit_f32(r as u32));
+        let z = lerp(
+            (1.0 / self.inv_depth.1, c.max_distance),
+            unit_f32((r >> 32) as u32),
+        );
+        let h = lerp((c.min_height, c.max_height), unit_f32(rng.next_u32()));
+        let [r0, rz, rx] = self.road;
+        Some([x, r0 + rz * z + rx * x + h, z])
     }
 
     /// Depth of vehicle-frame point `p` along the left camera's optical axis.
@@ -252,6 +318,7 @@ impl Sampler {
                 ez.z as f32,
             ],
             c: [origin.x as f32, origin.y as f32, origin.z as f32],
+            corridor: None,
         })
     }
 

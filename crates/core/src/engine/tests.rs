@@ -1043,3 +1043,84 @@ fn focused_immigrants_look_around_what_was_seen() {
     // The few whose probe lay outside the right image were redrawn uniformly.
     assert!(around >= 6, "{around} of 8 around what was seen");
 }
+
+/// Corridor immigrants scan the corridor: this generation's immigrants after the focused ones
+/// land inside it, on the wall it crosses (their probes find the wall's depth), on a still
+/// frame where nothing was seen. Without a corridor (or with none of them drawn) the
+/// population is the paper's, bit for bit.
+#[test]
+fn corridor_immigrants_probe_the_corridor() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 6.0, 3, 1);
+    // The small rig's cameras are 1 m up, level: a corridor 1.2 m wide around their height.
+    let corridor = Corridor {
+        half_width: 0.6,
+        min_height: 0.4,
+        max_height: 1.6,
+        max_distance: 10.0,
+    };
+    let run = |n: u32, scan: Option<Corridor>| {
+        let mut e = Engine::new(
+            &rig,
+            EngineParams {
+                corridor_immigrants: n,
+                ..params(1600, 5)
+            },
+        )
+        .expect("engine");
+        e.set_corridor(scan);
+        for _ in 0..4 {
+            e.step(&frame).expect("step");
+        }
+        e
+    };
+    let bits = |e: &Engine| -> Vec<u32> {
+        let p = e.population();
+        [&p.x, &p.y, &p.z, &p.fitness]
+            .iter()
+            .flat_map(|v| v.iter().map(|f| f.to_bits()))
+            .collect()
+    };
+    let paper = run(0, None);
+    assert_eq!(bits(&paper), bits(&run(0, Some(corridor))), "none drawn");
+    assert_eq!(bits(&paper), bits(&run(16, None)), "no corridor");
+    let e = run(16, Some(corridor));
+    assert_ne!(bits(&paper), bits(&e));
+    let p = e.population();
+    let from = p.len() - e.params().immigrants();
+    assert_eq!(e.params().corridor_immigrants(), 16);
+    let inside = |x: f32, y: f32| {
+        x.abs() <= corridor.half_width + 1e-3
+            && (corridor.min_height - 1e-3..=corridor.max_height + 1e-3).contains(&y)
+    };
+    // Within a pixel of disparity of the wall (f B = 39 px m: 6.5 px at 6 m).
+    let on_the_wall = |z: f32| (39.0 / z - 39.0 / 6.0).abs() <= 1.0;
+    let (mut in_corridor, mut reach, mut found) = (0, 0, 0);
+    for i in from..from + 16 {
+        if !inside(p.x[i], p.y[i]) || p.z[i] > corridor.max_distance {
+            continue;
+        }
+        in_corridor += 1;
+        // Where the left camera's ray through the fly meets the wall: if inside the corridor,
+        // the fly's probes crossed the wall and the fittest is on it; if not, the ray crosses
+        // the corridor only where nothing is and its fittest depth is a weak chance match.
+        let t = 6.0 / p.z[i];
+        let (x, y) = (-0.15 + (p.x[i] + 0.15) * t, 1.0 + (p.y[i] - 1.0) * t);
+        if inside(x, y) {
+            reach += 1;
+            found += usize::from(on_the_wall(p.z[i]));
+        }
+    }
+    eprintln!("{in_corridor} in the corridor, {reach} reach the wall there, {found} on it");
+    // A point drawn in the corridor may be seen by no camera (too near): drawn uniformly.
+    assert!(in_corridor >= 14, "{in_corridor} of 16 in the corridor");
+    assert!(
+        reach >= 4,
+        "{reach} of 16 rays reach the wall in the corridor"
+    );
+    // 16 strata then two refinements find the fitness peak (a fraction of a pixel wide on
+    // this fine texture) on about half the rays (32 strata: 3 of 4, at twice the cost); a
+    // depth drawn uniformly where the ray crosses the corridor (10-35 px of disparity here)
+    // would be within 1 px on 1 in 5 or fewer.
+    assert!(2 * found >= reach, "{found} of {reach} on the wall");
+}

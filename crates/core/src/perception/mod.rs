@@ -23,7 +23,7 @@ pub use obstacle::{
 pub use road::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
 pub use track::{TrackConfig, Tracked, Tracker};
 
-use crate::engine::{Engine, EngineError, EngineParams, GenerationStats};
+use crate::engine::{Corridor, Engine, EngineError, EngineParams, GenerationStats};
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
 use crate::road::RoadPlane;
@@ -145,7 +145,19 @@ impl Perception {
         config.validate()?;
         let flies = params.flies;
         let params_min_depth = params.min_depth;
-        let engine = Engine::new(rig, params).map_err(PerceptionError::Engine)?;
+        let scan = params.roi.map(|_| params.corridor_scan_distance);
+        let mut engine = Engine::new(rig, params).map_err(PerceptionError::Engine)?;
+        // Some immigrants scan the corridor the obstacle stage looks in; a scene without a
+        // road (a dataset) has none.
+        if let Some(scan) = scan {
+            let o = &config.obstacle;
+            engine.set_corridor(Some(Corridor {
+                half_width: o.corridor_half_width as f32,
+                min_height: o.min_height as f32,
+                max_height: o.max_height as f32,
+                max_distance: o.max_distance.min(scan) as f32,
+            }));
+        }
         let prior = RoadPlane::FLAT;
         let fb = rig.right.intrinsics().fx * rig.baseline();
         Ok(Self {
