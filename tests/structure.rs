@@ -688,6 +688,7 @@ const CORE_LAYERS: &[&[&str]] = &[
         "isa",
         "macros",
         "motion",
+        "path",
         "road",
         "status",
         "test_support",

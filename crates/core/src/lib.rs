@@ -20,6 +20,7 @@ pub mod frame;
 pub mod geometry;
 pub mod isa;
 pub mod motion;
+pub mod path;
 pub mod perception;
 pub mod policy;
 pub mod rectification;

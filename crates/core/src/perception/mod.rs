@@ -26,6 +26,7 @@ pub use track::{TrackConfig, Tracked, Tracker};
 use crate::engine::{Corridor, Engine, EngineError, EngineParams, GenerationStats};
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
+use crate::path::PredictedPath;
 use crate::road::RoadPlane;
 
 /// The `[perception]` settings.
@@ -133,6 +134,9 @@ pub struct Perception {
     /// Generations before the obstacle stage runs (the population is not trusted before).
     warmup: u64,
     report: PerceptionReport,
+    /// The path of the motion the next new frame's flies were moved with
+    /// ([`Perception::predict`]); none: that frame's corridor is straight.
+    predicted_path: Option<PredictedPath>,
 }
 
 impl Perception {
@@ -187,6 +191,7 @@ impl Perception {
             },
             config,
             warmup: 0,
+            predicted_path: None,
         })
     }
 
@@ -225,10 +230,20 @@ impl Perception {
     }
 
     /// Moves the flies with the vehicle's motion over `dt` seconds, between two frames
-    /// ([`Engine::predict`]).
+    /// ([`Engine::predict`]); with `obstacle.follow_path`, on the next frame the obstacle
+    /// stage's corridor follows the path that motion describes ([`PredictedPath::of_motion`]).
+    /// A frame not preceded by a prediction (no trusted motion) has a straight corridor.
     pub fn predict(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
         self.engine.predict(motion, dt);
         self.tracker.moved(motion.speed * dt, dt);
+        if self.config.obstacle.follow_path {
+            self.predicted_path = Some(PredictedPath::of_motion(motion));
+        }
+    }
+
+    /// The path the obstacle stage's corridor follows on the current frame.
+    pub fn path(&self) -> PredictedPath {
+        self.finder.path()
     }
 
     /// The nearest distance an obstacle is judged from one sighting, metres
@@ -247,6 +262,13 @@ impl Perception {
     /// One generation on `frame`.
     pub fn evolve(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
         let stats = self.engine.step(frame)?;
+        if stats.new_frame {
+            self.finder.set_path(
+                self.predicted_path
+                    .take()
+                    .unwrap_or(PredictedPath::STRAIGHT),
+            );
+        }
         self.report.stats = stats;
         self.report.estimated = false;
         Ok(stats)

@@ -2,9 +2,11 @@
 //!
 //! Which flies count ([`ObstacleFinder::find`]):
 //! 1. **Candidates**: flies with a positive fitness (after the region of interest, before
-//!    sharing) inside the corridor: `|x| <= corridor_half_width`, `min_height..=max_height`
-//!    above the measured road, at most `max_distance` ahead. Flies on the road, above the
-//!    vehicle or off the corridor are no obstacle.
+//!    sharing) inside the corridor: at most `corridor_half_width` off the vehicle's predicted
+//!    path ([`PredictedPath`]: the arc of its trusted speed and yaw rate, straight ahead
+//!    without them), `min_height..=max_height` above the measured road, at most
+//!    `max_distance` along the path. Flies on the road, above the vehicle or off the corridor
+//!    are no obstacle; an obstacle's distance is along the path, its lateral offset from it.
 //! 2. **A sample** of them, met in a fixed stride order over the population (unrelated to
 //!    position or fitness), until `candidates` needed a measurement: a fly measured on this
 //!    frame that has not moved since (a survivor) is taken from a memo at no cost, so the
@@ -72,6 +74,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::engine::{Engine, EngineError};
 use crate::frame::StereoFrame;
+use crate::path::PredictedPath;
 use crate::road::RoadPlane;
 
 /// What the obstacle stage looks for; the defaults are the vehicle's and the measurement's
@@ -89,6 +92,13 @@ pub struct ObstacleConfig {
     pub max_height: f64,
     /// Flies farther ahead are not looked at, metres.
     pub max_distance: f64,
+    /// The corridor follows the vehicle's predicted path (the arc of its trusted speed and
+    /// yaw rate, [`PredictedPath`]) instead of going straight ahead. Off by default: the arc
+    /// extrapolates the yaw rate of the moment over the whole SLOW distance, and on hw-mock's
+    /// lane change (30 km/h) and the real drive of KITTI odometry 06 (43 km/h, the yaw rate
+    /// from its poses) it swept the roadside into the corridor and SLOWed on every seed
+    /// (docs/perception.md).
+    pub follow_path: bool,
     /// A cluster whose lowest fly is higher than this above the road is no obstacle, metres
     /// (see the module docs, step 4).
     pub max_bottom: f64,
@@ -132,6 +142,7 @@ impl Default for ObstacleConfig {
     fn default() -> Self {
         Self {
             corridor_half_width: 1.2,
+            follow_path: false,
             min_height: 0.3,
             max_height: 2.0,
             max_distance: 40.0,
@@ -300,15 +311,16 @@ impl ObstacleConfig {
 /// The nearest obstacle in the corridor, vehicle frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Obstacle {
-    /// Ahead, metres (vehicle z): the cluster's near face, the first quartile of its depths
-    /// (its median read ~1 m long on hw-mock's pedestrian at 23 m, where a pixel of disparity
-    /// is 3.4 m).
+    /// Ahead, metres along the vehicle's predicted path (straight: vehicle z): the cluster's
+    /// near face, the first quartile of its flies' distances (its median read ~1 m long on
+    /// hw-mock's pedestrian at 23 m, where a pixel of disparity is 3.4 m).
     pub distance: f64,
     /// The nearest it may be, metres: `distance` with `disparity_error_px` more disparity.
     /// What the decision judges it at (the stopping distance is a bound, and the depth of a
     /// few pixels of disparity is uncertain by metres).
     pub near: f64,
-    /// Lateral offset, metres (vehicle x, positive right): the cluster's median.
+    /// Lateral offset from the predicted path, metres (straight: vehicle x), positive right:
+    /// the cluster's median.
     pub lateral: f64,
     /// Height above the road of the cluster's lowest fly, metres.
     pub bottom: f64,
@@ -338,6 +350,8 @@ pub struct CorridorCounts {
 #[derive(Debug, Clone)]
 pub struct ObstacleFinder {
     config: ObstacleConfig,
+    /// The corridor's centre line: the vehicle's predicted path (straight unless set).
+    path: PredictedPath,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
     /// The sampled flies (what the stage needs of each, read once from the population) and
@@ -416,6 +430,7 @@ impl ObstacleFinder {
         let k = config.candidates;
         Self {
             config,
+            path: PredictedPath::STRAIGHT,
             pixels_per_inverse_depth,
             sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
@@ -440,6 +455,17 @@ impl ObstacleFinder {
 
     pub fn config(&self) -> &ObstacleConfig {
         &self.config
+    }
+
+    /// The corridor follows `path` from the next [`ObstacleFinder::find`] on: a fly's
+    /// distance is along it, its lateral position is its offset from it.
+    pub fn set_path(&mut self, path: PredictedPath) {
+        self.path = path;
+    }
+
+    /// The path the corridor follows.
+    pub fn path(&self) -> PredictedPath {
+        self.path
     }
 
     /// What the latest [`ObstacleFinder::find`] looked at.
@@ -499,15 +525,22 @@ impl ObstacleFinder {
         let cell_px = c.cell_px.max(1) as f32;
         let mut i = 0usize;
         let mut scanned = 0;
+        let path = self.path;
         while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
             let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
             let h = y - (r0 + rz * z + rx * x);
+            // Where it is along the predicted path and off it (straight: z and x).
+            let (along, off) = if !path.is_straight() && z > 0.0 {
+                path.locate(x, z)
+            } else {
+                (z, x)
+            };
             let inside = i < immigrants_from
                 && pop.raw_fitness[i] > 0.0
-                && x.abs() <= half
+                && off.abs() <= half
                 && (lo..=hi).contains(&h)
                 && z > 0.0
-                && z <= far;
+                && along <= far;
             if inside {
                 let m = self.memo[i];
                 let at = [x.to_bits(), y.to_bits(), z.to_bits()];
@@ -523,10 +556,11 @@ impl ObstacleFinder {
                 let (cu, cv) = (((u + 0.5) / cell_px) as u32, ((v + 0.5) / cell_px) as u32);
                 self.sample.push(Unique {
                     z,
+                    along,
                     cell: (cv << 16) | (cu & 0xFFFF),
                     u,
                     v,
-                    x,
+                    x: off,
                     h,
                     index: i as u32,
                 });
@@ -587,17 +621,26 @@ impl ObstacleFinder {
             let at = scratch.len() * q / 4;
             f64::from(*scratch.select_nth_unstable_by(at, f32::total_cmp).1)
         };
-        // The near face (the first quartile of depth): what braking must stop before.
-        let distance = quantile(&mut self.scratch, |u| u.z, 1);
+        // The near face (the first quartile of depth): what braking must stop before, along
+        // the path (straight: the depth).
+        let depth = quantile(&mut self.scratch, |u| u.z, 1);
         let lateral = quantile(&mut self.scratch, |u| u.x, 2);
+        let f_b = self.pixels_per_inverse_depth;
+        // Half a pixel of disparity nearer: in depth, then along the path by as much.
+        let near_depth = f_b / (f_b / depth + c.disparity_error_px);
+        let (distance, near) = if self.path.is_straight() {
+            (depth, near_depth)
+        } else {
+            let along = quantile(&mut self.scratch, |u| u.along, 1);
+            (along, along - (depth - near_depth))
+        };
         let (bottom, top) = cluster
             .iter()
             .fold((f32::MAX, f32::MIN), |(b, t), u| (b.min(u.h), t.max(u.h)));
         let flies = cluster.len();
-        let f_b = self.pixels_per_inverse_depth;
         Ok(Some(Obstacle {
             distance,
-            near: f_b / (f_b / distance + c.disparity_error_px),
+            near,
             lateral,
             bottom: f64::from(bottom),
             top: f64::from(top),
@@ -796,14 +839,18 @@ fn ordered(x: f32) -> u32 {
     if b >> 31 == 1 { !b } else { b | (1 << 31) }
 }
 
-/// A sampled fly: its depth, its left-image cell (row << 16 | column), its left-image column,
-/// its lateral position, its height above the road and its index.
+/// A sampled fly: its depth, where it is along the path, its left-image cell (row << 16 |
+/// column) and position, its lateral offset from the path, its height above the road and its
+/// index.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Unique {
     z: f32,
+    /// Distance along the predicted path (straight: `z`).
+    along: f32,
     cell: u32,
     u: f32,
     v: f32,
+    /// Offset from the predicted path, positive right (straight: the vehicle frame's x).
     x: f32,
     h: f32,
     index: u32,
@@ -895,6 +942,7 @@ mod tests {
             .enumerate()
             .map(|(i, &z)| Unique {
                 z,
+                along: z,
                 // A diagonal: every fly its own row and column, 8 px apart.
                 cell: (i as u32) << 16 | i as u32,
                 u: 8.0 * i as f32,
