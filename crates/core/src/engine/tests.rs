@@ -23,6 +23,15 @@ fn rig() -> StereoRig {
     })
 }
 
+/// The population's positions and fitnesses, bit for bit.
+fn population_bits(e: &Engine) -> Vec<u32> {
+    let p = e.population();
+    [&p.x, &p.y, &p.z, &p.fitness]
+        .iter()
+        .flat_map(|v| v.iter().map(|f| f.to_bits()))
+        .collect()
+}
+
 fn hash(ix: i64, iy: i64, seed: u64) -> f64 {
     let mut h = (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
         ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
@@ -1008,22 +1017,19 @@ fn focused_immigrants_look_around_what_was_seen() {
         }
         e
     };
-    let bits = |e: &Engine| -> Vec<u32> {
-        let p = e.population();
-        [&p.x, &p.y, &p.z, &p.fitness]
-            .iter()
-            .flat_map(|v| v.iter().map(|f| f.to_bits()))
-            .collect()
-    };
     let paper = run(0, false);
-    assert_eq!(bits(&paper), bits(&run(0, true)), "none drawn: the paper's");
     assert_eq!(
-        bits(&paper),
-        bits(&run(8, false)),
+        population_bits(&paper),
+        population_bits(&run(0, true)),
+        "none drawn: the paper's"
+    );
+    assert_eq!(
+        population_bits(&paper),
+        population_bits(&run(8, false)),
         "nothing seen: the paper's"
     );
     let e = run(8, true);
-    assert_ne!(bits(&paper), bits(&e));
+    assert_ne!(population_bits(&paper), population_bits(&e));
     let p = e.population();
     let from = p.len() - e.params().immigrants();
     let block = crate::frame::BLOCK as f32;
@@ -1074,18 +1080,19 @@ fn corridor_immigrants_probe_the_corridor() {
         }
         e
     };
-    let bits = |e: &Engine| -> Vec<u32> {
-        let p = e.population();
-        [&p.x, &p.y, &p.z, &p.fitness]
-            .iter()
-            .flat_map(|v| v.iter().map(|f| f.to_bits()))
-            .collect()
-    };
     let paper = run(0, None);
-    assert_eq!(bits(&paper), bits(&run(0, Some(corridor))), "none drawn");
-    assert_eq!(bits(&paper), bits(&run(16, None)), "no corridor");
+    assert_eq!(
+        population_bits(&paper),
+        population_bits(&run(0, Some(corridor))),
+        "none drawn"
+    );
+    assert_eq!(
+        population_bits(&paper),
+        population_bits(&run(16, None)),
+        "no corridor"
+    );
     let e = run(16, Some(corridor));
-    assert_ne!(bits(&paper), bits(&e));
+    assert_ne!(population_bits(&paper), population_bits(&e));
     let p = e.population();
     let from = p.len() - e.params().immigrants();
     assert_eq!(e.params().corridor_immigrants(), 16);
