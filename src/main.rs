@@ -118,8 +118,10 @@ struct ReplayArgs {
     seed: Option<u64>,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
     /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian, drive-30, drive-40,
-    /// drive-30-to-pedestrian, drive-40-to-pedestrian, drive-30-lane-change (the moving ones
-    /// decided at their own speed, the flies moved with it).
+    /// drive-30-to-pedestrian, drive-40-to-pedestrian, drive-30-lane-change, bend-30,
+    /// bend-30-to-pedestrian, bend-30-parked-car, bend-40, bend-40-to-pedestrian,
+    /// bend-40-parked-car (the moving ones decided at their own speed, the flies moved with
+    /// it).
     #[arg(long)]
     scenario: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a

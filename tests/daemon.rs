@@ -12,6 +12,7 @@ use std::time::Duration;
 use common::*;
 use flyd::daemon::EndReason;
 use flyd_core::can::bus::BusError;
+use flyd_core::can::messages::PathMsg;
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::status::{FaultBits, State};
 
@@ -44,6 +45,19 @@ fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {
     assert_consecutive(&counters(&frames, command_counter), "command");
     assert_consecutive(&counters(&frames, status_counter), "status");
     assert_consecutive(&counters(&frames, obstacle_counter), "obstacle");
+    assert_consecutive(&counters(&frames, path_counter), "path");
+    // Without the vehicle's motion the corridor is the straight box, and FLYD_Path says so.
+    let paths: Vec<PathMsg> = frames
+        .iter()
+        .filter_map(|f| match f {
+            Frame::Path(p, _) => Some(*p),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        !paths.is_empty() && paths.iter().all(|p| *p == PathMsg::NONE),
+        "{paths:?}"
+    );
 
     let cmds = commands(&frames);
     let first_stop = cmds

@@ -15,7 +15,7 @@ use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
 use dbc_signals::{raw_value, value_table};
 use flyd_core::can::crc::e2e_crc;
 use flyd_core::can::messages::{
-    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, StatusMsg,
+    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, PathMsg, StatusMsg,
 };
 use flyd_core::can::{CanConfig, MessageConfig};
 use flyd_core::decision::{Command, CommandReason};
@@ -169,6 +169,16 @@ fn obstacle_case(msg: ObstacleMsg, c: u8) -> Case {
     case(&msg, c, signals)
 }
 
+fn path_case(msg: PathMsg, c: u8) -> Case {
+    let valid = if msg.valid { "VALID" } else { "STRAIGHT" };
+    let signals = vec![
+        ("PathValid", Want::Named(valid)),
+        ("Curvature", Want::Phys(msg.curvature)),
+        ("CurvatureNow", Want::Phys(msg.curvature_now)),
+    ];
+    case(&msg, c, signals)
+}
+
 fn motion_case(msg: MotionMsg, c: u8) -> Case {
     let valid = if msg.valid { "VALID" } else { "INVALID" };
     let signals = vec![
@@ -274,6 +284,23 @@ fn cases() -> Vec<Case> {
             13,
         ),
         obstacle_case(ObstacleMsg::NONE, 0),
+        path_case(
+            PathMsg {
+                valid: true,
+                curvature: 0.01667,
+                curvature_now: -0.2,
+            },
+            5,
+        ),
+        path_case(
+            PathMsg {
+                valid: true,
+                curvature: -0.32768,
+                curvature_now: 0.32767,
+            },
+            11,
+        ),
+        path_case(PathMsg::NONE, 0),
         motion_case(
             MotionMsg {
                 valid: true,
@@ -375,7 +402,7 @@ fn encoder_writes_every_signal_where_the_dbc_says() {
 #[test]
 fn dbc_frames_are_well_formed() {
     let dbc = load();
-    assert_eq!(dbc.messages.len(), 4);
+    assert_eq!(dbc.messages.len(), 5);
     for msg in &dbc.messages {
         assert_eq!(msg.size, 8, "{}", msg.name);
         assert!(
@@ -453,6 +480,7 @@ fn ids_data_ids_and_cycle_times_match_the_rust_defaults() {
     check::<CommandMsg>(&dbc, cfg.command);
     check::<StatusMsg>(&dbc, cfg.status);
     check::<ObstacleMsg>(&dbc, cfg.obstacle);
+    check::<PathMsg>(&dbc, cfg.path);
     check::<MotionMsg>(&dbc, cfg.motion);
 }
 
@@ -544,6 +572,12 @@ fn saturation_matches_the_dbc_ranges() {
         (ObstacleMsg::NAME, "Height", |v| {
             obstacle_with(|m| m.height = v)
         }),
+        (PathMsg::NAME, "Curvature", |v| {
+            path_with(|m| m.curvature = v)
+        }),
+        (PathMsg::NAME, "CurvatureNow", |v| {
+            path_with(|m| m.curvature_now = v)
+        }),
     ];
     let dbc = load();
     for (msg_name, sig_name, build) in builds {
@@ -596,6 +630,16 @@ fn status_with(f: impl FnOnce(&mut StatusMsg)) -> [u8; 8] {
         generations_per_sec: 100.0,
         cam_fps_left: 30.0,
         cam_fps_right: 30.0,
+    };
+    f(&mut m);
+    m.encode(AliveCounter::ZERO)
+}
+
+fn path_with(f: impl FnOnce(&mut PathMsg)) -> [u8; 8] {
+    let mut m = PathMsg {
+        valid: true,
+        curvature: 0.01,
+        curvature_now: 0.01,
     };
     f(&mut m);
     m.encode(AliveCounter::ZERO)

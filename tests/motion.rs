@@ -53,10 +53,11 @@ impl Vcu {
             while !s.sleep(Duration::from_millis(20)) {
                 let target = f64::from(v.load(Ordering::Relaxed)) / 100.0;
                 speed += (target - speed).clamp(-0.1, 0.1);
+                // Turning as it goes: a constant curvature at any speed.
                 let msg = MotionMsg {
                     valid: true,
                     speed,
-                    yaw_rate: 0.0,
+                    yaw_rate: CURVATURE * speed,
                 };
                 match m.load(Ordering::Relaxed) {
                     SEND_SPEED => rx.push(id, &msg.encode(counter.advance())),
@@ -108,6 +109,9 @@ impl Drop for Vcu {
     }
 }
 
+/// The arc the VCU's vehicle drives on, 1/m (left).
+const CURVATURE: f64 = 0.01;
+
 fn last_command(frames: &[Frame]) -> Option<Command> {
     commands(frames).last().map(|c| c.command)
 }
@@ -146,6 +150,21 @@ fn decisions_follow_the_measured_speed_and_fall_back_to_the_assumed_one() {
         Some(false),
         "{}",
         summary(&frames)
+    );
+    // FLYD_Path: the arc of the moment once moving, the corridor's centre line once it has
+    // been held for perception.obstacle.path_hold_s (2 s).
+    let on_arc = |k: f64| (k - CURVATURE).abs() < 2e-4;
+    let frames = daemon.wait_for("FLYD_Path with the held curvature", |f| {
+        paths(f)
+            .last()
+            .is_some_and(|p| p.valid && on_arc(p.curvature) && on_arc(p.curvature_now))
+    });
+    assert!(
+        paths(&frames).iter().all(|p| p.curvature >= 0.0
+            && p.curvature <= CURVATURE + 2e-4
+            && (!p.valid || p.curvature == 0.0 || on_arc(p.curvature_now))),
+        "{:?}",
+        paths(&frames)
     );
 
     // Back to a standstill: STOP is held, then released (the obstacle is beyond reach).

@@ -12,8 +12,16 @@ use flyd_core::perception::{Obstacle, ObstacleConfig, Perception, PerceptionConf
 
 /// The last obstacle estimate of 40 frames of `pedestrian-4m` (320x240, 2000 flies, seed 1),
 /// each frame's flies "moved" with `motion` over no time: the vehicle stands, but its path is
-/// the motion's. Returns it with the path the corridor followed.
+/// the motion's, extrapolated as soon as it is seen (`path_hold_s` 0). Returns it with the
+/// path the corridor followed.
 fn judged(motion: Option<VehicleMotion>) -> (Option<Obstacle>, PredictedPath) {
+    judged_holding(motion, 0.0)
+}
+
+fn judged_holding(
+    motion: Option<VehicleMotion>,
+    path_hold_s: f64,
+) -> (Option<Obstacle>, PredictedPath) {
     let scenario = hw_mock::Scenario::by_name("pedestrian-4m").expect("scenario");
     let mut mock = MockStereo::new(scenario, 320, 240).expect("mock");
     let mut perception = Perception::new(
@@ -26,6 +34,7 @@ fn judged(motion: Option<VehicleMotion>) -> (Option<Obstacle>, PredictedPath) {
         PerceptionConfig {
             obstacle: ObstacleConfig {
                 follow_path: true,
+                path_hold_s,
                 ..ObstacleConfig::default()
             },
             ..PerceptionConfig::default()
@@ -94,4 +103,18 @@ fn the_corridor_bends_with_the_vehicles_path() {
             "k = {k}: the pedestrian 1.6 m off the path is an obstacle: {sharp:?}"
         );
     }
+    // A turn held for no time at all (the motion over 0 s each frame) with the default hold:
+    // distances and offsets stay straight ahead, and what is off the arc of the moment is
+    // still no obstacle (an obstacle must be on both).
+    let hold = ObstacleConfig::default().path_hold_s;
+    let (unheld, path) = judged_holding(bend(0.05), hold);
+    assert_eq!(path, PredictedPath::STRAIGHT);
+    let unheld = unheld.expect("the pedestrian is on both the straight and the gentle path");
+    assert!(
+        (unheld.lateral - straight.lateral).abs() < 0.15,
+        "{unheld:?} against {straight:?}"
+    );
+    let (sharp, path) = judged_holding(bend(0.2), hold);
+    assert_eq!(path, PredictedPath::STRAIGHT);
+    assert!(sharp.is_none(), "off the arc of the moment: {sharp:?}");
 }

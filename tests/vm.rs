@@ -420,7 +420,7 @@ impl FlydRun {
         );
         let mut out = vec![format!("{} frames, every CRC valid", self.frames.len())];
         let mut gaps = 0;
-        for name in ["FLYD_Command", "FLYD_Status", "FLYD_Obstacle"] {
+        for name in ["FLYD_Command", "FLYD_Status", "FLYD_Obstacle", "FLYD_Path"] {
             let msgs = self.messages(name);
             assert!(msgs.len() > 10, "only {} {name} frames", msgs.len());
             for w in msgs.windows(2) {
@@ -1057,9 +1057,13 @@ fn flyd_reopens_a_vanished_can_interface_and_sends_again() {
     ));
 }
 
+/// The yaw rate of flyd_motion's vehicle from 5 s on (a gentle left bend), rad/s.
+const MOTION_YAW_RATE: f64 = 0.05;
+
 /// The host's script of the vehicle's bus for flyd_motion: `VCU_Motion` every 20 ms, standing
-/// still for 5 s, then driving off at 5 m/s^2 to 30 km/h, held to 8 s; a bad frame every 250 ms
-/// among the good ones (a flipped CRC, an E2E-valid 300 m/s, a DLC of 7, a repeated counter).
+/// still for 5 s, then driving off at 5 m/s^2 to 30 km/h, held to 9 s, turning left at
+/// [`MOTION_YAW_RATE`] from 5 s; a bad frame every 250 ms among the good ones (a flipped CRC,
+/// an E2E-valid 300 m/s, a DLC of 7, a repeated counter).
 /// Returns the candump log and the counts of good and bad frames.
 fn motion_log() -> (String, u64, u64) {
     use flyd_core::can::candump::format_candump_line;
@@ -1072,13 +1076,13 @@ fn motion_log() -> (String, u64, u64) {
     };
     let mut counter = AliveCounter::ZERO;
     let (mut good, mut bad) = (0, 0);
-    for k in 0..400u32 {
+    for k in 0..450u32 {
         let t = Duration::from_millis(20 * u64::from(k));
         let s = t.as_secs_f64();
         let msg = MotionMsg {
             valid: true,
             speed: (5.0 * (s - 5.0)).clamp(0.0, 30.0 / 3.6),
-            yaw_rate: 0.0,
+            yaw_rate: if s >= 5.0 { MOTION_YAW_RATE } else { 0.0 },
         };
         let data = msg.encode(counter.advance());
         line(t, &data);
@@ -1267,6 +1271,54 @@ fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it
         label_counts(&after, "MotionFault")
     );
 
+    // The path (FLYD_Path): straight ahead before the frames; turning left from 5 s, the arc
+    // of the moment at once and the corridor's centre line once the turn has been held for
+    // perception.obstacle.path_hold_s (2 s): at 30 km/h both yaw rate / speed. Never right.
+    let paths = r.messages("FLYD_Path");
+    let straight_before: Vec<&Frame> = paths
+        .iter()
+        .copied()
+        .filter(|f| f.time > running && f.time < first)
+        .collect();
+    assert!(
+        !straight_before.is_empty()
+            && straight_before
+                .iter()
+                .all(|f| f.label("PathValid") == "STRAIGHT"),
+        "before the frames: {}",
+        label_counts(&straight_before, "PathValid")
+    );
+    let k = MOTION_YAW_RATE / (30.0 / 3.6);
+    let near = |f: &Frame, signal: &str| (f.value(signal) - k).abs() <= 0.15 * k;
+    let now_at = paths
+        .iter()
+        .find(|f| f.time > first + 6.7 && near(f, "CurvatureNow"))
+        .map(|f| f.time - first);
+    let held_at = paths
+        .iter()
+        .find(|f| f.time > first + 7.0 && near(f, "Curvature"))
+        .map(|f| f.time - first);
+    assert!(
+        now_at.is_some() && held_at.is_some(),
+        "curvature {k:.4} 1/m: of the moment {now_at:?} s, held {held_at:?} s into the frames; \
+         FLYD_Path: {:?}",
+        paths
+            .iter()
+            .filter(|f| f.time > first)
+            .map(|f| (
+                f.time - first,
+                f.value("Curvature"),
+                f.value("CurvatureNow")
+            ))
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        paths
+            .iter()
+            .all(|f| f.value("Curvature") >= 0.0 && f.value("CurvatureNow") >= 0.0),
+        "a path turning right"
+    );
+
     // Every frame was counted, the bad ones rejected.
     let stopped = r.logged("flyd stopped");
     let report = stopped.first().expect("the 'flyd stopped' event");
@@ -1280,12 +1332,16 @@ fn flyd_decides_at_the_speed_the_vehicle_sends_and_at_the_assumed_one_without_it
          statuses and CLEAR 4 m before the pedestrian ({clear} of {} commands, the others \
          FAULT_FALLBACK); driving off, first STOP {stop_at:.2} s \
          into the frames (the stopping distance reaches 4 m at 5.45 s); after the last frame \
-         MotionFault in {:.0} ms, STOP; rejected {bad}, accepted {good}; {bus}",
+         MotionFault in {:.0} ms, STOP; FLYD_Path at {k:.4} 1/m ({MOTION_YAW_RATE} rad/s at \
+         30 km/h): the arc of the moment {:.2} s, the held path {:.2} s into the frames; \
+         rejected {bad}, accepted {good}; {bus}",
         confirmed - running,
         stop_share * 100.0,
         standing.len(),
         standing_cmds.len(),
-        lost * 1e3
+        lost * 1e3,
+        now_at.unwrap_or(f64::NAN),
+        held_at.unwrap_or(f64::NAN)
     ));
 }
 

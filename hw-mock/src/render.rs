@@ -419,7 +419,9 @@ pub struct CameraRenderer {
     tiles: Vec<Tile>,
     /// The static world (road, sky, roadside) alone, the vehicle at pose `bg_pose`
     /// ([`pose_bits`]).
-    bg_pose: [u64; 3],
+    bg_pose: [u64; 4],
+    /// ... and with these obstacles fixed to the road ([`Scene::fixed`]).
+    bg_fixed: Vec<crate::world::Obstacle>,
     bg_rgb: Vec<u8>,
     bg_depth: Vec<f32>,
     bg_t: Vec<f64>,
@@ -473,6 +475,7 @@ impl CameraRenderer {
             rays,
             tiles,
             bg_pose: pose_bits(&Scene::default()),
+            bg_fixed: Vec::new(),
             bg_rgb: vec![0; pixels * 3],
             bg_depth: vec![0.0; pixels],
             bg_t: vec![0.0; pixels],
@@ -499,6 +502,7 @@ impl CameraRenderer {
 
     fn render_background(&mut self, scene: &Scene) {
         self.bg_pose = pose_bits(scene);
+        self.bg_fixed.clone_from(&scene.fixed);
         let props = scene.props();
         let bounds: Vec<_> = props
             .iter()
@@ -540,7 +544,7 @@ impl CameraRenderer {
     }
 
     fn trace_scene(&mut self, scene: &Scene) {
-        if pose_bits(scene) != self.bg_pose {
+        if pose_bits(scene) != self.bg_pose || scene.fixed != self.bg_fixed {
             // The vehicle moved: a new background, and every tile restored from it.
             self.render_background(scene);
             self.dirty.fill(true);
@@ -643,11 +647,12 @@ impl CameraRenderer {
 }
 
 /// The vehicle's pose in `scene`, bit for bit: a background is rendered again when it moves.
-fn pose_bits(scene: &Scene) -> [u64; 3] {
+fn pose_bits(scene: &Scene) -> [u64; 4] {
     [
         scene.travelled.to_bits(),
         scene.lateral.to_bits(),
         scene.heading.to_bits(),
+        scene.bend.to_bits(),
     ]
 }
 

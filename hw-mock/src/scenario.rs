@@ -6,7 +6,7 @@
 //! the vehicle frame. A moving vehicle's frames each cost a full render (a few frames a second
 //! at 640x480): those scenarios are for offline replay, not a live mock camera.
 
-use crate::world::{Obstacle, Scene};
+use crate::world::{Material, Obstacle, Scene, bend};
 
 const FPS: f64 = 30.0;
 
@@ -35,7 +35,33 @@ enum Kind {
         from: f64,
         duration: f64,
     },
+    /// At `speed` m/s along the centre line of a road of constant `curvature` (1/m, positive
+    /// left), from where the bend starts; with what [`Around`] says stands on it.
+    Bend {
+        speed: f64,
+        curvature: f64,
+        around: Around,
+    },
 }
+
+/// What stands on a bend.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Around {
+    /// Nothing but the roadside and the guard rail on the outside.
+    Empty,
+    /// A pedestrian on the centre line, this far along the bend.
+    Pedestrian(f64),
+    /// A car parked on the outside, its rear this far along the bend, its near side
+    /// [`PARKED_GAP`] beyond the centre line (0.5 m outside flyd's default corridor).
+    ParkedCar(f64),
+}
+
+/// The parked car's near side, metres from the centre line.
+const PARKED_GAP: f64 = 1.7;
+/// The bends: 60 m radius to the left at 30 km/h, 120 m to the right at 40 km/h (lateral
+/// accelerations 1.2 and 1.0 m/s^2, yaw rates 0.14 and 0.09 rad/s).
+const BEND_30: f64 = 1.0 / 60.0;
+const BEND_40: f64 = -1.0 / 120.0;
 
 /// Frame at which the pedestrian of `pedestrian-steps-in` appears.
 const STEP_IN_FRAME: u32 = 30;
@@ -65,7 +91,7 @@ const LANE_CHANGE_LATERAL: f64 = 2.0;
 const LANE_CHANGE_FROM: f64 = 0.5;
 const LANE_CHANGE_DURATION: f64 = 5.0;
 
-const ALL: [Scenario; 11] = [
+const ALL: [Scenario; 17] = [
     Scenario {
         name: "empty-road",
         description: "Nothing in the lane; roadside walls, poles and trees only.",
@@ -148,7 +174,80 @@ const ALL: [Scenario; 11] = [
         },
         frames: 180,
     },
+    Scenario {
+        name: "bend-30",
+        description: "At 30 km/h round a 60 m left bend (yaw rate 0.14 rad/s), a guard rail on its outside 5.45 m from the centre line, the roadside laid along it; nothing in the path. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_30,
+            curvature: BEND_30,
+            around: Around::Empty,
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "bend-30-to-pedestrian",
+        description: "bend-30 with a pedestrian on the centre line 40 m along the bend at the first frame, 7 m at the last; the stopping distance at 30 km/h is 14.9 m. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_30,
+            curvature: BEND_30,
+            around: Around::Pedestrian(40.0),
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "bend-30-parked-car",
+        description: "bend-30 with a car parked on the outside of the bend, its rear 30 m along, its near side 1.7 m right of the centre line: outside the path. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_30,
+            curvature: BEND_30,
+            around: Around::ParkedCar(30.0),
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "bend-40",
+        description: "At 40 km/h round a 120 m right bend (yaw rate -0.09 rad/s), a guard rail on its outside; nothing in the path. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_40,
+            curvature: BEND_40,
+            around: Around::Empty,
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "bend-40-to-pedestrian",
+        description: "bend-40 with a pedestrian on the centre line 50 m along the bend at the first frame, 6 m at the last; the stopping distance at 40 km/h is 23.0 m. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_40,
+            curvature: BEND_40,
+            around: Around::Pedestrian(50.0),
+        },
+        frames: 120,
+    },
+    Scenario {
+        name: "bend-40-parked-car",
+        description: "bend-40 with a car parked on the outside of the bend (left), its rear 40 m along, its near side 1.7 m left of the centre line: outside the path. Offline replay only.",
+        kind: Kind::Bend {
+            speed: KMH_40,
+            curvature: BEND_40,
+            around: Around::ParkedCar(40.0),
+        },
+        frames: 120,
+    },
 ];
+
+/// A car (as [`Obstacle::car`]) parked on the outside of a bend of `curvature`, its rear
+/// `rear` metres along it, laid along the bend.
+fn parked_car(curvature: f64, rear: f64) -> Obstacle {
+    let side: f64 = if curvature >= 0.0 { 1.0 } else { -1.0 };
+    let (a, b) = (side * PARKED_GAP, side * (PARKED_GAP + 1.8));
+    Obstacle::Bent {
+        curvature,
+        min: [a.min(b), 0.0, rear],
+        max: [a.max(b), 1.5, rear + 4.2],
+        material: Material::CAR,
+    }
+}
 
 impl Scenario {
     /// Names accepted by [`Scenario::by_name`].
@@ -181,7 +280,10 @@ impl Scenario {
     pub fn live(&self) -> bool {
         !matches!(
             self.kind,
-            Kind::Cruise { .. } | Kind::Approach { .. } | Kind::LaneChange { .. }
+            Kind::Cruise { .. }
+                | Kind::Approach { .. }
+                | Kind::LaneChange { .. }
+                | Kind::Bend { .. }
         )
     }
 
@@ -224,6 +326,24 @@ impl Scenario {
                 }
                 Scene::posed(z, x, heading, vec![])
             }
+            Kind::Bend {
+                speed,
+                curvature,
+                around,
+            } => {
+                let along = speed * seconds(0);
+                let fixed = match around {
+                    Around::ParkedCar(rear) => vec![parked_car(curvature, rear)],
+                    _ => vec![],
+                };
+                let mut scene = Scene::on_bend(curvature, along, 0.0, fixed, vec![]);
+                if let Around::Pedestrian(at) = around {
+                    let (x, z) = bend::point(curvature, at, 0.0);
+                    let [x, _, z] = scene.vehicle_point([x, 0.0, z]);
+                    scene.obstacles.push(Obstacle::pedestrian(x, z));
+                }
+                scene
+            }
         }
     }
 
@@ -236,14 +356,15 @@ impl Scenario {
         match self.kind {
             Kind::Cruise { speed }
             | Kind::Approach { speed, .. }
-            | Kind::LaneChange { speed, .. } => speed,
+            | Kind::LaneChange { speed, .. }
+            | Kind::Bend { speed, .. } => speed,
             _ => 0.0,
         }
     }
 
-    /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): 0 but in the lane
-    /// change (the road itself is straight). Held over the frame, as the vehicle's motion
-    /// message reports it.
+    /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): speed times the
+    /// road's curvature on a bend, the S-curve of the lane change, 0 otherwise. Held over the
+    /// frame, as the vehicle's motion message reports it.
     pub fn yaw_rate_at(&self, frame: u32) -> f64 {
         match self.kind {
             Kind::LaneChange {
@@ -260,6 +381,9 @@ impl Scenario {
                     0.0
                 }
             }
+            Kind::Bend {
+                speed, curvature, ..
+            } if frame < self.frames => speed * curvature,
             _ => 0.0,
         }
     }
@@ -372,7 +496,7 @@ mod tests {
                 assert_eq!(z, 4.0);
                 x
             }
-            Obstacle::Box { .. } => panic!("a pedestrian is a cylinder"),
+            _ => panic!("a pedestrian is a cylinder"),
         };
         assert_eq!(x_at(30), 0.6);
         assert!(x_at(35) < 0.6 && x_at(35) > 0.0);

@@ -54,7 +54,7 @@ use crate::record::Observed;
 use crate::record::topics::{InputFrom, StatsEvent};
 use crate::thread::Shutdown;
 use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
-use flyd_core::can::messages::{CommandMsg, ObstacleMsg, StatusMsg};
+use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg, StatusMsg};
 use flyd_core::can::motion::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
@@ -138,6 +138,8 @@ pub struct ControlReport {
     pub commands_sent: u64,
     pub statuses_sent: u64,
     pub obstacles_sent: u64,
+    /// FLYD_Path frames sent.
+    pub paths_sent: u64,
     pub can_errors: u64,
     pub snapshots: u64,
     pub decision_changes: u64,
@@ -228,6 +230,7 @@ impl<B: CanBus> ControlThread<B> {
         let mut command_slot = Periodic::new(self.can.command.period(), start);
         let mut status_slot = Periodic::new(self.can.status.period(), start);
         let mut obstacle_slot = Periodic::new(self.can.obstacle.period(), start);
+        let mut path_slot = Periodic::new(self.can.path.period(), start);
         let mut stats_slot = Periodic::new(self.stats_interval, start + self.stats_interval);
         let mut s = Loop {
             latest: None,
@@ -279,6 +282,12 @@ impl<B: CanBus> ControlThread<B> {
                 self.sent(&mut s, r, "FLYD_Obstacle");
                 s.report.obstacles_sent += 1;
             }
+            if path_slot.due(now) {
+                let msg = s.latest.map_or(PathMsg::NONE, |l| l.path_msg());
+                let r = self.tx.send_path(&msg);
+                self.sent(&mut s, r, "FLYD_Path");
+                s.report.paths_sent += 1;
+            }
             if stats_slot.due(now) {
                 self.stats(&mut s);
             }
@@ -303,7 +312,8 @@ impl<B: CanBus> ControlThread<B> {
             let next = command_slot
                 .next()
                 .min(status_slot.next())
-                .min(obstacle_slot.next());
+                .min(obstacle_slot.next())
+                .min(path_slot.next());
             let wait = next.saturating_sub(self.clock.now()).min(MAX_TURN);
             if !wait.is_zero() {
                 // Wakes on the next snapshot: an escalation leaves without waiting for the turn.
@@ -432,6 +442,7 @@ impl<B: CanBus> ControlThread<B> {
                 generation_time: snapshot.generation_time,
                 road: &snapshot.road,
                 tracked: &snapshot.tracked,
+                path: snapshot.path,
             };
             recorder.snapshot(next_seq(s), now, observed, input);
         }

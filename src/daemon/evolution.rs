@@ -67,9 +67,12 @@ pub struct EvolutionThread {
     pub road_source: Option<RoadSource>,
     /// Debounces each new pair's image health into sensor faults.
     pub sensor: SensorMonitor,
-    /// The vehicle's trusted motion: each new pair's flies are first moved with it over the
-    /// time since the previous pair (`None`: `vehicle.predict_flies = false`).
+    /// The vehicle's trusted motion (`None`: no motion configured): each new pair's
+    /// corridor follows its path, and its flies are first moved with it over the time since
+    /// the previous pair (with `predict_flies`).
     pub motion: Option<SharedMotion>,
+    /// `vehicle.predict_flies`.
+    pub predict_flies: bool,
     /// Gets each new pair (with the motion its flies were moved with) and the flies every
     /// `record.flies_every` generations.
     pub recorder: Option<crate::record::Recorder>,
@@ -98,7 +101,11 @@ impl EvolutionThread {
                     (pair, self.motion.as_ref().and_then(SharedMotion::get))
                 {
                     let dt = l.timestamp.saturating_sub(previous.timestamp);
-                    self.perception.predict(motion, dt.as_secs_f64());
+                    if self.predict_flies {
+                        self.perception.predict(motion, dt.as_secs_f64());
+                    } else {
+                        self.perception.follow(motion, dt.as_secs_f64());
+                    }
                     predicted = Some(PredictEvent {
                         speed: motion.speed,
                         yaw_rate: motion.yaw_rate,
@@ -191,6 +198,7 @@ impl EvolutionThread {
                 road: report.road,
                 tracked: report.tracked,
                 corridor: report.corridor,
+                path: self.perception.path_estimate(),
                 generation_time,
                 overrun,
                 left,

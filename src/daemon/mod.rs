@@ -359,7 +359,8 @@ pub fn run(
         stop: stop.clone(),
         road_source: None,
         sensor: SensorMonitor::new(config.sensor),
-        motion: config.vehicle.predict_flies.then(|| motion.clone()),
+        motion: config.motion().map(|_| motion.clone()),
+        predict_flies: config.vehicle.predict_flies,
         recorder: recorder.clone(),
         rows: Some(rows_monitor),
     };

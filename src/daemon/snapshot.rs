@@ -8,7 +8,8 @@
 use std::time::Duration;
 
 use crate::source::FrameMeta;
-use flyd_core::can::messages::ObstacleMsg;
+use flyd_core::can::messages::{ObstacleMsg, PathMsg};
+use flyd_core::path::PathEstimate;
 use flyd_core::perception::{CorridorCounts, RoadEstimate, Tracked};
 use flyd_core::sensor::SensorFaults;
 
@@ -37,6 +38,8 @@ pub struct Snapshot {
     pub tracked: Tracked,
     /// What the latest obstacle estimate looked at.
     pub corridor: CorridorCounts,
+    /// The paths the corridor follows (none: straight, no trusted motion).
+    pub path: Option<PathEstimate>,
     /// Wall time of both engines' generation plus the perception stages.
     pub generation_time: Duration,
     /// `generation_time` over the configured maximum.
@@ -71,5 +74,10 @@ impl Snapshot {
     /// FLYD_Obstacle for this snapshot.
     pub fn obstacle_msg(&self) -> ObstacleMsg {
         ObstacleMsg::of(&self.tracked, &self.road)
+    }
+
+    /// FLYD_Path for this snapshot.
+    pub fn path_msg(&self) -> PathMsg {
+        PathMsg::of(self.path)
     }
 }

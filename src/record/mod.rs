@@ -481,6 +481,8 @@ pub struct Observed<'a> {
     pub generation_time: Duration,
     pub road: &'a flyd_core::perception::RoadEstimate,
     pub tracked: &'a flyd_core::perception::Tracked,
+    /// The paths the corridor followed (none: straight, no trusted motion).
+    pub path: Option<flyd_core::path::PathEstimate>,
 }
 
 impl Recorder {
@@ -511,6 +513,8 @@ impl Recorder {
             road_measured: o.road.measured(),
             matched: o.matched,
             generation_us: o.generation_time.as_secs_f64() * 1e6,
+            path_curvature: o.path.map(|p| p.held.curvature),
+            path_curvature_now: o.path.map(|p| p.now.curvature),
         };
         let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);
         self.perception(event, obstacle, o.tracked.confirmed);

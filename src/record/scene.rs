@@ -4,8 +4,9 @@
 use std::time::Duration;
 
 use foxglove::schemas::{
-    CameraCalibration, Color, CubePrimitive, FrameTransform, PackedElementField, PointCloud, Pose,
-    Quaternion, SceneEntity, SceneUpdate, Timestamp, Vector3, packed_element_field::NumericType,
+    CameraCalibration, Color, CubePrimitive, FrameTransform, LinePrimitive, PackedElementField,
+    Point3, PointCloud, Pose, Quaternion, SceneEntity, SceneUpdate, Timestamp, Vector3,
+    line_primitive, packed_element_field::NumericType,
 };
 
 use super::FLY_FLOATS;
@@ -112,8 +113,13 @@ pub(super) fn identity_pose() -> Pose {
     }
 }
 
-/// The road estimate (a 3.5 m x 40 m slab, tilted as measured) and the obstacle (a box from
-/// its bottom to its top, red when confirmed, amber otherwise).
+/// How far ahead the scene draws the corridor's path, metres.
+const PATH_DRAWN_M: f64 = 40.0;
+
+/// The road estimate (a 3.5 m x 40 m slab, tilted as measured), the path the corridor
+/// followed (a line on the road, 40 m along it) and the obstacle (a box from its bottom to its
+/// top, red when confirmed, amber otherwise; on the path: `distance` along it, `lateral` from
+/// it).
 pub(super) fn scene(
     t: u64,
     event: &super::topics::PerceptionEvent,
@@ -161,8 +167,56 @@ pub(super) fn scene(
         cubes: vec![road],
         ..SceneEntity::default()
     }];
+    let path = flyd_core::path::PredictedPath {
+        curvature: event.path_curvature.unwrap_or(0.0),
+    };
+    // The road's height under a vehicle-frame point.
+    let road_y =
+        |x: f64, z: f64| event.road_height_m + event.road_slope_z * z + event.road_slope_x * x;
+    let points = (0..=(PATH_DRAWN_M as u32) / 2)
+        .map(|i| {
+            let (x, z) = path.point(2.0 * f64::from(i));
+            let v = base_link(x, road_y(x, z) + 0.02, z);
+            Point3 {
+                x: v.x,
+                y: v.y,
+                z: v.z,
+            }
+        })
+        .collect();
+    entities.push(SceneEntity {
+        timestamp: ts,
+        frame_id: "base_link".into(),
+        id: "path".into(),
+        lifetime,
+        lines: vec![LinePrimitive {
+            r#type: line_primitive::Type::LineStrip as i32,
+            pose: Some(identity_pose()),
+            thickness: 0.1,
+            scale_invariant: false,
+            points,
+            color: Some(Color {
+                r: 0.2,
+                g: 0.9,
+                b: 0.4,
+                a: if event.path_curvature.is_some() {
+                    0.8
+                } else {
+                    0.3
+                },
+            }),
+            colors: Vec::new(),
+            indices: Vec::new(),
+        }],
+        ..SceneEntity::default()
+    });
     if let Some([distance, lateral, bottom, top]) = obstacle {
         let height = (top - bottom).max(0.1);
+        // Its near face `distance` along the path, `lateral` right of it, turned with it.
+        let along = distance + 0.25;
+        let (px, pz) = path.point(along);
+        let heading = path.curvature * along;
+        let (x, z) = (px + lateral * heading.cos(), pz + lateral * heading.sin());
         entities.push(SceneEntity {
             timestamp: ts,
             frame_id: "base_link".into(),
@@ -170,8 +224,14 @@ pub(super) fn scene(
             lifetime,
             cubes: vec![CubePrimitive {
                 pose: Some(Pose {
-                    position: Some(base_link(lateral, bottom + height / 2.0, distance + 0.25)),
-                    ..identity_pose()
+                    position: Some(base_link(x, bottom + height / 2.0, z)),
+                    // Turned left by `heading` about base_link's z (up).
+                    orientation: Some(Quaternion {
+                        x: 0.0,
+                        y: 0.0,
+                        z: (heading / 2.0).sin(),
+                        w: (heading / 2.0).cos(),
+                    }),
                 }),
                 size: Some(Vector3 {
                     x: 0.5,
@@ -235,5 +295,56 @@ mod tests {
         let t = tf.translation.expect("translation");
         let c = rig.left.centre();
         assert_eq!((t.x, t.y, t.z), (c.z, -c.x, c.y));
+    }
+
+    fn event(path_curvature: Option<f64>) -> super::super::topics::PerceptionEvent {
+        super::super::topics::PerceptionEvent {
+            seq: 1,
+            t_ns: 1,
+            generation: 1,
+            warming_up: false,
+            global_warning: 0.0,
+            obstacle_m: None,
+            candidate_m: Some(20.0),
+            candidate_lateral_m: Some(0.0),
+            speed: 8.0,
+            latency: 0.0,
+            road_height_m: 0.0,
+            road_slope_z: 0.0,
+            road_slope_x: 0.0,
+            road_measured: true,
+            matched: 1.0,
+            generation_us: 100.0,
+            path_curvature,
+            path_curvature_now: path_curvature,
+        }
+    }
+
+    #[test]
+    fn the_path_is_drawn_and_the_obstacle_stands_on_it() {
+        let at = |k: Option<f64>| {
+            let update = scene(1, &event(k), Some([20.0, 0.0, 0.0, 1.7]), true);
+            let path = update
+                .entities
+                .iter()
+                .find(|e| e.id == "path")
+                .expect("path");
+            let end = *path.lines[0].points.last().expect("points");
+            let obstacle = update.entities.iter().find(|e| e.id == "obstacle");
+            let pose = obstacle.expect("obstacle").cubes[0].pose.expect("pose");
+            (end, pose.position.expect("position"))
+        };
+        // Straight: the line runs 40 m forward, the obstacle 20.25 m ahead on it.
+        let (end, p) = at(None);
+        assert!((end.x - 40.0).abs() < 1e-9 && end.y.abs() < 1e-9, "{end:?}");
+        assert!((p.x - 20.25).abs() < 1e-9 && p.y.abs() < 1e-9, "{p:?}");
+        // A 50 m left bend: both bend left (+y in base_link): 20.25 m along the arc is
+        // 4 m left of the straight line.
+        let (end, p) = at(Some(0.02));
+        assert!(end.y > 14.0, "{end:?}");
+        assert!(
+            (p.y - 4.05).abs() < 0.05 && (p.x - 19.7).abs() < 0.1,
+            "{p:?}"
+        );
     }
 }

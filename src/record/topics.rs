@@ -142,7 +142,8 @@ const BOOL: &str = "\"boolean\"";
 const OPT_NUM: &str = "[\"number\",\"null\"]";
 const OPT_OBJ: &str = "[\"object\",\"null\"]";
 
-/// The vehicle's motion a new pair's flies were moved with (`Engine::predict`).
+/// The vehicle's trusted motion before a new pair: its corridor followed that path, and its
+/// flies were moved with it (`Engine::predict`) with `vehicle.predict_flies`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PredictEvent {
     /// m/s
@@ -215,6 +216,14 @@ pub struct PerceptionEvent {
     pub matched: f64,
     #[serde(with = "nan_as_null")]
     pub generation_us: f64,
+    /// The curvature of the path the corridor followed, 1/m, positive turning left
+    /// (`FLYD_Path`): the candidate's distance is along it and its lateral offset from it.
+    /// None: straight ahead for want of a trusted motion (and in recordings made before it).
+    #[serde(default)]
+    pub path_curvature: Option<f64>,
+    /// ... and of the arc of the moment, which an obstacle must also be on.
+    #[serde(default)]
+    pub path_curvature_now: Option<f64>,
 }
 
 impl PerceptionEvent {
@@ -235,6 +244,8 @@ impl PerceptionEvent {
         ("road_measured", BOOL),
         ("matched", NUM),
         ("generation_us", NUM),
+        ("path_curvature", OPT_NUM),
+        ("path_curvature_now", OPT_NUM),
     ];
 }
 

@@ -295,11 +295,16 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         let mut predicted = None;
         let new_frame = index != Some(wanted);
         if new_frame {
-            if let (Some(previous), true) = (index, settings.predict)
+            if let Some(previous) = index
                 && let Some(motion) = feed.motion(previous)
             {
                 let dt = (wanted - previous) as f64 / fps;
-                perception.predict(motion, dt);
+                // The corridor follows the motion's path either way, as the daemon's does.
+                if settings.predict {
+                    perception.predict(motion, dt);
+                } else {
+                    perception.follow(motion, dt);
+                }
                 predicted = Some((motion, dt));
             }
             feed.load(wanted, &mut frame, &mut left)?;
@@ -498,6 +503,7 @@ impl ReplayRecording {
             generation_time: elapsed,
             road: &report.road,
             tracked: &report.tracked,
+            path: perception.path_estimate(),
         };
         r.snapshot(self.seq, at, observed, input);
         let Some(decision) = decision else {

@@ -111,6 +111,7 @@ struct Outcome {
     matched: f64,
     road: flyd_core::perception::RoadEstimate,
     tracked: flyd_core::perception::Tracked,
+    path: Option<flyd_core::path::PathEstimate>,
 }
 
 /// What the replay needs to write a recording of itself (`flyd replay --mcap --record`).
@@ -225,6 +226,7 @@ fn replay_perception(
     let (w, h) = (config.cameras.width, config.cameras.height);
     let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations);
+    let predict_flies = config.vehicle.predict_flies;
     let image = || PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
     let right = image()?.with_row_shift(right_row_offset_px);
     let mut stereo = StereoFrame::new(image()?, right, 0);
@@ -321,13 +323,16 @@ fn replay_perception(
         last_at = Duration::from_nanos(pair.left_ns.max(pair.right_ns));
         stereo.id = pair.pair_id;
         if let Some(p) = pair.predict {
-            perception.predict(
-                VehicleMotion {
-                    speed: p.speed,
-                    yaw_rate: p.yaw_rate,
-                },
-                p.dt,
-            );
+            let motion = VehicleMotion {
+                speed: p.speed,
+                yaw_rate: p.yaw_rate,
+            };
+            // The daemon moved the flies with it only with vehicle.predict_flies.
+            if predict_flies {
+                perception.predict(motion, p.dt);
+            } else {
+                perception.follow(motion, p.dt);
+            }
         }
         generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
         if generation != pair.generation {
@@ -388,6 +393,7 @@ fn step(
         matched: report.stats.matched,
         road: report.road,
         tracked: report.tracked,
+        path: perception.path_estimate(),
     };
     // Generations count up by one from 1: this is the next slot.
     if usize::try_from(g).is_ok_and(|i| i == outcomes.len()) {
@@ -502,6 +508,7 @@ fn replay_decisions(
                         generation_time: Duration::from_secs_f64(p.generation_us.max(0.0) * 1e-6),
                         road: &o.road,
                         tracked: &o.tracked,
+                        path: o.path,
                     };
                     r.snapshot(p.seq, t, observed, &input);
                 }

@@ -13,7 +13,9 @@ use flyd::bus::{MemoryBus, MemoryRx, RecordedFrame};
 use flyd::config::DaemonConfig;
 use flyd::daemon::{self, MonotonicClock, RunReport, SharedClock, Shutdown};
 use flyd::source::{FrameMeta, FrameSource, SourceError};
-use flyd_core::can::messages::{AliveCounter, CanMessage, CommandMsg, ObstacleMsg, StatusMsg};
+use flyd_core::can::messages::{
+    AliveCounter, CanMessage, CommandMsg, ObstacleMsg, PathMsg, StatusMsg,
+};
 use flyd_core::decision::DecisionConfig;
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::engine::EngineParams;
@@ -356,6 +358,7 @@ pub enum Frame {
     Command(CommandMsg, AliveCounter),
     Status(StatusMsg, AliveCounter),
     Obstacle(ObstacleMsg, AliveCounter),
+    Path(PathMsg, AliveCounter),
 }
 
 pub fn decode(f: &RecordedFrame) -> Frame {
@@ -378,6 +381,11 @@ pub fn decode(f: &RecordedFrame) -> Frame {
                 .unwrap_or_else(ctx(f));
             Frame::Obstacle(m, c)
         }
+        0x123 => {
+            let (m, c) =
+                PathMsg::decode_with(&f.data, PathMsg::DEFAULT_DATA_ID).unwrap_or_else(ctx(f));
+            Frame::Path(m, c)
+        }
         id => panic!("unexpected CAN id {id:#x}"),
     }
 }
@@ -394,6 +402,10 @@ macro_rules! messages {
             .filter_map(|f| if let $kind(m, _) = f { Some(*m) } else { None })
             .collect()
     };
+}
+
+pub fn paths(frames: &[Frame]) -> Vec<PathMsg> {
+    messages!(frames, Frame::Path)
 }
 
 pub fn commands(frames: &[Frame]) -> Vec<CommandMsg> {
@@ -427,6 +439,12 @@ pub fn obstacle_counter(f: &Frame) -> Option<AliveCounter> {
         _ => None,
     }
 }
+pub fn path_counter(f: &Frame) -> Option<AliveCounter> {
+    match f {
+        Frame::Path(_, c) => Some(*c),
+        _ => None,
+    }
+}
 
 /// Each counter is the previous one + 1 (mod 15): no frame lost or repeated.
 pub fn assert_consecutive(counters: &[AliveCounter], what: &str) {
@@ -457,7 +475,7 @@ pub fn summary(frames: &[Frame]) -> String {
         let s = match f {
             Frame::Command(m, _) => format!("cmd {} {}", m.command, m.reason),
             Frame::Status(m, _) => format!("status {} {}", m.state, m.faults),
-            Frame::Obstacle(..) => continue,
+            Frame::Obstacle(..) | Frame::Path(..) => continue,
         };
         if s == last {
             n += 1;

@@ -113,6 +113,15 @@ pub struct Material {
     pub seed: u64,
 }
 
+impl Material {
+    /// A car's paint, rear window and lights ([`Obstacle::car`]).
+    pub const CAR: Self = Self {
+        colour: [45, 85, 150],
+        pattern: Pattern::Car,
+        seed: 0xCA2,
+    };
+}
+
 /// An object standing on the road.
 ///
 /// Texture coordinates are object-local: for a box face, `s` runs horizontally across the face
@@ -133,6 +142,16 @@ pub enum Obstacle {
         z: f64,
         radius: f64,
         height: f64,
+        material: Material,
+    },
+    /// A box laid along a road of `curvature` ([`bend`]): `min..max` are road coordinates
+    /// (offset from the centre line, height, length along it), the faces and texture
+    /// coordinates a [`Obstacle::Box`] spanning them has on a straight road (a wall along a
+    /// bend, a car parked on it). Frame: the road's, from where the bend starts.
+    Bent {
+        curvature: f64,
+        min: [f64; 3],
+        max: [f64; 3],
         material: Material,
     },
 }
@@ -197,11 +216,7 @@ impl Obstacle {
         Obstacle::Box {
             min: [x - 0.9, 0.0, z],
             max: [x + 0.9, 1.5, z + 4.2],
-            material: Material {
-                colour: [45, 85, 150],
-                pattern: Pattern::Car,
-                seed: 0xCA2,
-            },
+            material: Material::CAR,
         }
     }
 
@@ -226,6 +241,12 @@ impl Obstacle {
                     && radius > 0.0
                     && height > 0.0
             }
+            Obstacle::Bent {
+                curvature,
+                min,
+                max,
+                ..
+            } => bend::is_valid(curvature, min, max),
         }
     }
 
@@ -237,6 +258,10 @@ impl Obstacle {
                 max[2] += dz;
             }
             Obstacle::Cylinder { z, .. } => *z += dz,
+            Obstacle::Bent { min, max, .. } => {
+                min[2] += dz;
+                max[2] += dz;
+            }
         }
     }
 
@@ -247,12 +272,23 @@ impl Obstacle {
             Obstacle::Cylinder { x, z, radius, .. } => {
                 (x - radius, x + radius, z - radius, z + radius)
             }
+            Obstacle::Bent {
+                curvature,
+                min,
+                max,
+                ..
+            } => {
+                let (_, (lo, hi)) = bend::bounds(curvature, min, max);
+                (lo[0], hi[0], lo[2], hi[2])
+            }
         }
     }
 
     pub fn material(&self) -> &Material {
         match self {
-            Obstacle::Box { material, .. } | Obstacle::Cylinder { material, .. } => material,
+            Obstacle::Box { material, .. }
+            | Obstacle::Cylinder { material, .. }
+            | Obstacle::Bent { material, .. } => material,
         }
     }
 
@@ -280,6 +316,12 @@ impl Obstacle {
                 [x, 0.5 * height, z],
                 (radius * radius + 0.25 * height * height).sqrt(),
             ),
+            Obstacle::Bent {
+                curvature,
+                min,
+                max,
+                ..
+            } => bend::bounds(curvature, min, max).0,
         })
     }
 
@@ -300,6 +342,12 @@ impl Obstacle {
                 [x - radius, 0.0, z - radius],
                 [x + radius, height, z + radius],
             ),
+            Obstacle::Bent {
+                curvature,
+                min,
+                max,
+                ..
+            } => bend::bounds(curvature, min, max).1,
         })
     }
 
@@ -325,6 +373,12 @@ impl Obstacle {
                 height,
                 ..
             } => intersect_cylinder(ray, x, z, radius, height),
+            Obstacle::Bent {
+                curvature,
+                min,
+                max,
+                ..
+            } => bend::intersect(ray, curvature, min, max),
         }
     }
 
@@ -455,6 +509,7 @@ pub(crate) fn footprint(p: [f64; 3], n: [f64; 3], eye: [f64; 3]) -> (f64, f64, f
     (across, across / cos, d)
 }
 
+pub mod bend;
 mod shading;
 
 use shading::*;
@@ -515,13 +570,28 @@ fn sky(dir: [f64; 3]) -> [f64; 3] {
 /// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel. The
 /// vehicle has driven `travelled` metres along the road (the road's texture is fixed to the
 /// ground, so it comes towards the cameras).
-fn ground_or_sky(ray: &Ray, travelled: f64, eye: [f64; 3]) -> Sample {
+/// The road under a ray in the frame it is traced in.
+#[derive(Debug, Clone, Copy)]
+enum Road {
+    /// Straight, the vehicle `travelled` metres down it (its texture comes towards it).
+    Straight { travelled: f64 },
+    /// Of constant curvature ([`bend`]), in the road frame.
+    Bend { curvature: f64 },
+}
+
+fn ground_or_sky(ray: &Ray, road: Road, eye: [f64; 3]) -> Sample {
     let (o, d) = (ray.origin, ray.dir);
     if d[1] < 0.0 && o[1] > 0.0 {
         let t = -o[1] / d[1];
         let p = ray.at(t);
         let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0], eye);
-        let albedo = road_albedo(p[0], p[2] + travelled, across, along);
+        let albedo = match road {
+            Road::Straight { travelled } => road_albedo(p[0], p[2] + travelled, across, along),
+            Road::Bend { curvature } => {
+                let (on, offset) = bend::locate(curvature, p[0], p[2]);
+                road_albedo(offset, on, across, along)
+            }
+        };
         return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
     }
     let c = sky(d);
@@ -541,7 +611,13 @@ pub(crate) fn trace(
     obstacles: &[Obstacle],
     travelled: f64,
 ) -> Sample {
-    trace_from(ray, props, obstacles, travelled, NOMINAL_EYE)
+    trace_from(
+        ray,
+        props,
+        obstacles,
+        Road::Straight { travelled },
+        NOMINAL_EYE,
+    )
 }
 
 /// [`trace`] for a viewpoint at `eye` (in the ray's frame).
@@ -549,10 +625,10 @@ fn trace_from(
     ray: &Ray,
     props: &[Obstacle],
     obstacles: &[Obstacle],
-    travelled: f64,
+    road: Road,
     eye: [f64; 3],
 ) -> Sample {
-    let mut best = ground_or_sky(ray, travelled, eye);
+    let mut best = ground_or_sky(ray, road, eye);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
     for o in props.iter().chain(obstacles) {
         if let Some(hit) = o.intersect(ray)
@@ -577,7 +653,14 @@ pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample
         return trace(ray, props, &[], scene.travelled);
     }
     let world = scene.world_ray(ray);
-    let mut s = trace_from(&world, props, &[], 0.0, scene.world_point(NOMINAL_EYE));
+    let road = if scene.bend == 0.0 {
+        Road::Straight { travelled: 0.0 }
+    } else {
+        Road::Bend {
+            curvature: scene.bend,
+        }
+    };
+    let mut s = trace_from(&world, props, &[], road, scene.world_point(NOMINAL_EYE));
     if s.t.is_finite() {
         s.depth = ray.at(s.t)[2] as f32;
     }
@@ -706,6 +789,13 @@ pub struct Scene {
     /// The vehicle's heading, radians from the road's direction, positive turned left (as a
     /// positive yaw rate turns it).
     pub heading: f64,
+    /// The road's curvature, 1/m, positive bending left ([`bend`]; 0: straight). On a bend,
+    /// (`lateral`, `travelled`) and `heading` are the vehicle's pose in the road frame of
+    /// where the bend starts ([`Scene::on_bend`]), and the roadside is laid along it.
+    pub bend: f64,
+    /// Obstacles fixed to the road (its frame, as the roadside): traced with the static world,
+    /// e.g. a car parked on a bend ([`Obstacle::Bent`]).
+    pub fixed: Vec<Obstacle>,
 }
 
 impl Scene {
@@ -737,6 +827,28 @@ impl Scene {
             travelled,
             lateral,
             heading,
+            ..Self::default()
+        }
+    }
+
+    /// The vehicle on a road of curvature `bend`, `along` metres down it and `offset` metres
+    /// right of its centre line, heading along it; with `fixed` (road frame) and `obstacles`
+    /// (vehicle frame).
+    pub fn on_bend(
+        bend: f64,
+        along: f64,
+        offset: f64,
+        fixed: Vec<Obstacle>,
+        obstacles: Vec<Obstacle>,
+    ) -> Self {
+        let (x, z) = bend::point(bend, along, offset);
+        Self {
+            obstacles,
+            travelled: z,
+            lateral: x,
+            heading: bend::heading(bend, along),
+            bend,
+            fixed,
         }
     }
 
@@ -744,17 +856,22 @@ impl Scene {
     /// in the road's frame ([`Scene::world_ray`]); otherwise it comes towards the vehicle as
     /// [`roadside_at`] (bit for bit the renders of a straight drive).
     pub fn is_posed(&self) -> bool {
-        self.heading != 0.0 || self.lateral != 0.0
+        self.heading != 0.0 || self.lateral != 0.0 || self.bend != 0.0 || !self.fixed.is_empty()
     }
 
     /// The roadside in the frame its rays are traced in: the road's for a posed vehicle, the
     /// vehicle's otherwise.
     pub fn props(&self) -> Vec<Obstacle> {
-        if self.is_posed() {
+        if !self.is_posed() {
+            return roadside_at(self.travelled);
+        }
+        let mut props = if self.bend == 0.0 {
             roadside()
         } else {
-            roadside_at(self.travelled)
-        }
+            bend::bent(self.bend, &roadside())
+        };
+        props.extend_from_slice(&self.fixed);
+        props
     }
 
     /// A vehicle-frame point in the road's frame.

@@ -42,9 +42,11 @@
 //! | bits   | signal          | type | scale  | range |
 //! |--------|-----------------|------|--------|-------|
 //! | 12..13 | `ObstacleValid` | u1   | 0 none / 1 valid | |
-//! | 16..32 | `Distance`      | u16  | 0.01 m | 0..=655.35 (vehicle-frame z, forward) |
-//! | 32..48 | `Lateral`       | i16  | 0.01 m | -327.68..=327.67 (vehicle-frame x, positive right) |
+//! | 16..32 | `Distance`      | u16  | 0.01 m | 0..=655.35 (along the path of `FLYD_Path`; straight: vehicle-frame z) |
+//! | 32..48 | `Lateral`       | i16  | 0.01 m | -327.68..=327.67 (offset from that path, positive right; straight: vehicle-frame x) |
 //! | 48..56 | `Confidence`    | u8   | 1 %    | 0..=100 |
+//!
+//! `FLYD_Path` (default ID 0x123, Data ID 0x0123, every 100 ms): see [`PathMsg`].
 //!
 //! `VCU_Motion` (received; default ID 0x110, Data ID 0x0110, every 20 ms, sent by the VCU):
 //!
@@ -539,9 +541,9 @@ default_codec!(StatusMsg);
 pub struct ObstacleMsg {
     /// `false`: no obstacle; the obstacle's fields are sent as 0 and must be ignored.
     pub valid: bool,
-    /// Forward distance (vehicle-frame z), m.
+    /// Distance along the corridor's path ([`PathMsg`]; straight: vehicle-frame z), m.
     pub distance: f64,
-    /// Lateral offset (vehicle-frame x), m, positive to the right.
+    /// Offset from that path (straight: vehicle-frame x), m, positive to the right.
     pub lateral: f64,
     /// Confidence, percent (0..=100).
     pub confidence: f64,
@@ -695,6 +697,9 @@ impl CanMessage for MotionMsg {
     }
 }
 default_codec!(MotionMsg);
+
+mod path;
+pub use path::PathMsg;
 
 #[cfg(test)]
 mod tests {

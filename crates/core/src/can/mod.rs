@@ -34,7 +34,7 @@ use thiserror::Error;
 
 use bus::{BusError, CanBus};
 use candump::CAN_SFF_MAX;
-use messages::{AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, StatusMsg};
+use messages::{AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, PathMsg, StatusMsg};
 
 /// Where and how often one message is sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -70,6 +70,7 @@ pub struct CanConfig {
     pub command: MessageConfig,
     pub status: MessageConfig,
     pub obstacle: MessageConfig,
+    pub path: MessageConfig,
     /// `VCU_Motion`, received: its period is the sender's, what staleness is counted in.
     pub motion: MessageConfig,
 }
@@ -80,6 +81,7 @@ impl Default for CanConfig {
             command: MessageConfig::default_for::<CommandMsg>(),
             status: MessageConfig::default_for::<StatusMsg>(),
             obstacle: MessageConfig::default_for::<ObstacleMsg>(),
+            path: MessageConfig::default_for::<PathMsg>(),
             motion: MessageConfig::default_for::<MotionMsg>(),
         }
     }
@@ -114,11 +116,12 @@ pub enum CanConfigError {
 }
 
 impl CanConfig {
-    fn named(&self) -> [(&'static str, MessageConfig); 4] {
+    fn named(&self) -> [(&'static str, MessageConfig); 5] {
         [
             (CommandMsg::NAME, self.command),
             (StatusMsg::NAME, self.status),
             (ObstacleMsg::NAME, self.obstacle),
+            (PathMsg::NAME, self.path),
             (MotionMsg::NAME, self.motion),
         ]
     }
@@ -133,9 +136,9 @@ impl CanConfig {
                 return Err(CanConfigError::ZeroPeriod { message });
             }
             // The command and the status are what the VCU watches for a live flyd (3 missed
-            // periods), the motion what flyd watches for a live VCU; the obstacle is
-            // information.
-            let max = if message == ObstacleMsg::NAME {
+            // periods), the motion what flyd watches for a live VCU; the obstacle and the
+            // path are information.
+            let max = if message == ObstacleMsg::NAME || message == PathMsg::NAME {
                 1000
             } else {
                 100
@@ -178,6 +181,7 @@ pub struct Transmitter<B: CanBus> {
     command_counter: AliveCounter,
     status_counter: AliveCounter,
     obstacle_counter: AliveCounter,
+    path_counter: AliveCounter,
 }
 
 impl<B: CanBus> Transmitter<B> {
@@ -189,6 +193,7 @@ impl<B: CanBus> Transmitter<B> {
             command_counter: AliveCounter::ZERO,
             status_counter: AliveCounter::ZERO,
             obstacle_counter: AliveCounter::ZERO,
+            path_counter: AliveCounter::ZERO,
         })
     }
 
@@ -211,6 +216,12 @@ impl<B: CanBus> Transmitter<B> {
     pub fn send_obstacle(&mut self, msg: &ObstacleMsg) -> Result<(), BusError> {
         let m = self.config.obstacle;
         let data = msg.encode_with(self.obstacle_counter.advance(), m.data_id);
+        self.bus.send(m.id, &data)
+    }
+
+    pub fn send_path(&mut self, msg: &PathMsg) -> Result<(), BusError> {
+        let m = self.config.path;
+        let data = msg.encode_with(self.path_counter.advance(), m.data_id);
         self.bus.send(m.id, &data)
     }
 

@@ -26,7 +26,7 @@ pub use track::{TrackConfig, Tracked, Tracker};
 use crate::engine::{Corridor, Engine, EngineError, EngineParams, GenerationStats};
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
-use crate::path::PredictedPath;
+use crate::path::{PathEstimate, PathEstimator};
 use crate::road::RoadPlane;
 
 /// The `[perception]` settings.
@@ -136,7 +136,11 @@ pub struct Perception {
     report: PerceptionReport,
     /// The path of the motion the next new frame's flies were moved with
     /// ([`Perception::predict`]); none: that frame's corridor is straight.
-    predicted_path: Option<PredictedPath>,
+    predicted_path: Option<PathEstimate>,
+    /// The curvature the vehicle has held (`obstacle.path_hold_s`).
+    path_estimator: PathEstimator,
+    /// The paths the current frame's corridor follows; none: straight, no trusted motion.
+    followed: Option<PathEstimate>,
 }
 
 impl Perception {
@@ -189,6 +193,8 @@ impl Perception {
                 corridor: CorridorCounts::default(),
                 estimated: false,
             },
+            path_estimator: PathEstimator::new(config.obstacle.path_hold_s),
+            followed: None,
             config,
             warmup: 0,
             predicted_path: None,
@@ -231,19 +237,35 @@ impl Perception {
 
     /// Moves the flies with the vehicle's motion over `dt` seconds, between two frames
     /// ([`Engine::predict`]); with `obstacle.follow_path`, on the next frame the obstacle
-    /// stage's corridor follows the path that motion describes ([`PredictedPath::of_motion`]).
-    /// A frame not preceded by a prediction (no trusted motion) has a straight corridor.
+    /// stage's corridor follows the path the vehicle has held over `obstacle.path_hold_s`,
+    /// and what it finds must also be on the arc of the moment ([`PathEstimator`],
+    /// [`PathEstimate`]). A frame not preceded by a prediction (no trusted motion) has a
+    /// straight corridor, and the hold starts again after it.
     pub fn predict(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
         self.engine.predict(motion, dt);
         self.tracker.moved(motion.speed * dt, dt);
+        self.follow(motion, dt);
+    }
+
+    /// The vehicle's motion over the `dt` seconds before the next frame, for its path only
+    /// (the flies stay where they are: `vehicle.predict_flies = false`); [`Perception::predict`]
+    /// does this too.
+    pub fn follow(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
         if self.config.obstacle.follow_path {
-            self.predicted_path = Some(PredictedPath::of_motion(motion));
+            self.predicted_path = Some(self.path_estimator.update(motion, dt));
         }
     }
 
     /// The path the obstacle stage's corridor follows on the current frame.
-    pub fn path(&self) -> PredictedPath {
+    pub fn path(&self) -> crate::path::PredictedPath {
         self.finder.path()
+    }
+
+    /// The paths of the current frame's corridor, as the vehicle's motion gave them
+    /// (`FLYD_Path`); `None`: straight ahead, for want of a trusted motion (or with
+    /// `obstacle.follow_path` off).
+    pub fn path_estimate(&self) -> Option<PathEstimate> {
+        self.followed
     }
 
     /// The nearest distance an obstacle is judged from one sighting, metres
@@ -263,11 +285,12 @@ impl Perception {
     pub fn evolve(&mut self, frame: &StereoFrame) -> Result<GenerationStats, EngineError> {
         let stats = self.engine.step(frame)?;
         if stats.new_frame {
-            self.finder.set_path(
-                self.predicted_path
-                    .take()
-                    .unwrap_or(PredictedPath::STRAIGHT),
-            );
+            self.followed = self.predicted_path.take();
+            if self.followed.is_none() {
+                self.path_estimator.reset();
+            }
+            let path = self.followed.unwrap_or(PathEstimate::STRAIGHT);
+            self.finder.set_paths(path.held, path.now);
         }
         self.report.stats = stats;
         self.report.estimated = false;

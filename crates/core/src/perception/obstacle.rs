@@ -93,12 +93,15 @@ pub struct ObstacleConfig {
     /// Flies farther ahead are not looked at, metres.
     pub max_distance: f64,
     /// The corridor follows the vehicle's predicted path (the arc of its trusted speed and
-    /// yaw rate, [`PredictedPath`]) instead of going straight ahead. Off by default: the arc
-    /// extrapolates the yaw rate of the moment over the whole SLOW distance, and on hw-mock's
-    /// lane change (30 km/h) and the real drive of KITTI odometry 06 (43 km/h, the yaw rate
-    /// from its poses) it swept the roadside into the corridor and SLOWed on every seed
-    /// (docs/perception.md).
+    /// yaw rate, [`PredictedPath`], as `path_hold_s` says) instead of going straight ahead.
+    /// Off: the straight box, whatever the yaw rate (on a bend it takes in the outside's
+    /// roadside and leaves out what is on the path).
     pub follow_path: bool,
+    /// The path bends only as much as the vehicle has turned, the same way, for this long,
+    /// seconds (the smallest curvature over that time, [`crate::path::PathEstimator`]): a
+    /// bend is followed once it has lasted this, a lane change's or a correction's brief yaw
+    /// rate is not extrapolated over the SLOW distance. 0: the yaw rate of the moment.
+    pub path_hold_s: f64,
     /// A cluster whose lowest fly is higher than this above the road is no obstacle, metres
     /// (see the module docs, step 4).
     pub max_bottom: f64,
@@ -142,7 +145,8 @@ impl Default for ObstacleConfig {
     fn default() -> Self {
         Self {
             corridor_half_width: 1.2,
-            follow_path: false,
+            follow_path: true,
+            path_hold_s: 2.0,
             min_height: 0.3,
             max_height: 2.0,
             max_distance: 40.0,
@@ -275,6 +279,7 @@ impl ObstacleConfig {
         within("obstacle.max_height", self.max_height, 1.0, 5.0)?;
         within("obstacle.max_distance", self.max_distance, 5.0, 200.0)?;
         within("obstacle.max_bottom", self.max_bottom, 0.5, 5.0)?;
+        within("obstacle.path_hold_s", self.path_hold_s, 0.0, 5.0)?;
         within("obstacle.max_ambiguity", self.max_ambiguity, 0.1, 1.0)?;
         within(
             "obstacle.max_line_ambiguity",
@@ -352,6 +357,9 @@ pub struct ObstacleFinder {
     config: ObstacleConfig,
     /// The corridor's centre line: the vehicle's predicted path (straight unless set).
     path: PredictedPath,
+    /// A fly is in the corridor only if it is also this close to this path (the arc the
+    /// vehicle is turning on now, while it has not held it: [`crate::path::PathEstimate`]).
+    gate: PredictedPath,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
     /// The sampled flies (what the stage needs of each, read once from the population) and
@@ -431,6 +439,7 @@ impl ObstacleFinder {
         Self {
             config,
             path: PredictedPath::STRAIGHT,
+            gate: PredictedPath::STRAIGHT,
             pixels_per_inverse_depth,
             sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
@@ -460,7 +469,14 @@ impl ObstacleFinder {
     /// The corridor follows `path` from the next [`ObstacleFinder::find`] on: a fly's
     /// distance is along it, its lateral position is its offset from it.
     pub fn set_path(&mut self, path: PredictedPath) {
+        self.set_paths(path, path);
+    }
+
+    /// As [`ObstacleFinder::set_path`], and a fly must also be within the corridor's
+    /// half-width of `gate` (an obstacle on both paths; `gate == path`: no second test).
+    pub fn set_paths(&mut self, path: PredictedPath, gate: PredictedPath) {
         self.path = path;
+        self.gate = gate;
     }
 
     /// The path the corridor follows.
@@ -525,7 +541,8 @@ impl ObstacleFinder {
         let cell_px = c.cell_px.max(1) as f32;
         let mut i = 0usize;
         let mut scanned = 0;
-        let path = self.path;
+        let (path, gate) = (self.path, self.gate);
+        let gated = gate != path;
         while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
             let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
             let h = y - (r0 + rz * z + rx * x);
@@ -540,7 +557,8 @@ impl ObstacleFinder {
                 && off.abs() <= half
                 && (lo..=hi).contains(&h)
                 && z > 0.0
-                && along <= far;
+                && along <= far
+                && (!gated || gate.locate(x, z).1.abs() <= half);
             if inside {
                 let m = self.memo[i];
                 let at = [x.to_bits(), y.to_bits(), z.to_bits()];
