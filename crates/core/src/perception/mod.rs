@@ -134,8 +134,8 @@ pub struct Perception {
     /// Generations before the obstacle stage runs (the population is not trusted before).
     warmup: u64,
     report: PerceptionReport,
-    /// The path of the motion the next new frame's flies were moved with
-    /// ([`Perception::predict`]); none: that frame's corridor is straight.
+    /// The paths of the motion given for the next new frame ([`Perception::predict`] or
+    /// [`Perception::follow`]); none: that frame's corridor is straight.
     predicted_path: Option<PathEstimate>,
     /// The curvature the vehicle has held (`obstacle.path_hold_s`).
     path_estimator: PathEstimator,
