@@ -450,6 +450,20 @@ fn cmd_check_config(file: &Path) -> anyhow::Result<()> {
             CanTarget::Log { path, .. } => format!("log {}", path.display()),
         }
     )?;
+    let rig = config.load_calibration()?.rig;
+    if let Some(r) = config.resolution(&rig).filter(|r| !r.enough()) {
+        eprintln!(
+            "{}: warning: the rig cannot resolve the SLOW distance at vehicle.assumed_speed_kmh \
+             = {:.0}: one pixel of disparity at {:.1} m is {:.1} m of depth (Z^2 / (f B)), more \
+             than decision.margin_m = {}; it resolves {:.1} m within the margin",
+            file.display(),
+            r.speed * 3.6,
+            r.slow_distance,
+            r.error_per_pixel,
+            r.margin,
+            r.resolved,
+        );
+    }
     Ok(())
 }
 

@@ -38,6 +38,32 @@ fn shipped_configs_pass_check_config() {
     }
 }
 
+/// The mock rig (f B = 156 px m at 640x480) resolves 17.7 m within the 2 m margin, short of
+/// the SLOW distance at 30 km/h (29.3 m): check-config passes with a warning that states the
+/// rule; at 20 km/h (SLOW distance 15.1 m) it has nothing to say.
+#[test]
+fn check_config_warns_when_the_rig_cannot_resolve_the_slow_distance() {
+    let (ok, stdout, stderr) = flyd(&["check-config", &repo("config/demo.toml")]);
+    assert!(ok && stdout.contains("ok"), "{stdout} {stderr}");
+    for needle in [
+        "warning: the rig cannot resolve the SLOW distance",
+        "29.3 m is 5.5 m of depth (Z^2 / (f B))",
+        "decision.margin_m = 2",
+        "resolves 17.7 m",
+    ] {
+        assert!(stderr.contains(needle), "{needle:?} not in {stderr:?}");
+    }
+    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join("slow.toml");
+    let slow = text.replacen("assumed_speed_kmh = 30", "assumed_speed_kmh = 20", 1);
+    assert_ne!(slow, text, "demo.toml sets the assumed speed");
+    std::fs::write(&file, slow).expect("write");
+    let (ok, stdout, stderr) = flyd(&["check-config", &file.display().to_string()]);
+    assert!(ok && stdout.contains("ok"), "{stdout} {stderr}");
+    assert!(!stderr.contains("warning"), "{stderr}");
+}
+
 /// The demo config with `from` replaced by `to`: check-config and run must both fail, naming
 /// `key` and the file.
 fn check(from: &str, to: &str, key: &str, words: &str) {

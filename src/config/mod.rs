@@ -27,7 +27,7 @@ use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
 use flyd_core::engine::{Engine, EngineError, EngineParams};
 use flyd_core::frame::PixelFormat;
 use flyd_core::geometry::StereoRig;
-use flyd_core::perception::PerceptionConfig;
+use flyd_core::perception::{PerceptionConfig, Resolution};
 use flyd_core::sensor::SensorConfig;
 use flyd_core::status::FaultBits;
 
@@ -517,6 +517,20 @@ impl DaemonConfig {
             }
         }
         Ok(cal)
+    }
+}
+
+impl DaemonConfig {
+    /// In the obstacle mode, how well `rig` resolves the SLOW distance at
+    /// `vehicle.assumed_speed_kmh`, the highest speed the configuration is checked for
+    /// ([`flyd_core::perception::range`]: one pixel of disparity at `Z` is `Z^2 / (f B)` metres,
+    /// against `decision.margin_m`). Start-up logs it and `check-config` warns when it is not
+    /// enough.
+    pub fn resolution(&self, rig: &StereoRig) -> Option<Resolution> {
+        (self.decision.mode == DecisionMode::Obstacle).then(|| {
+            let fb = rig.right.intrinsics().fx * rig.baseline();
+            Resolution::at(&self.decision, fb, self.vehicle.assumed_speed)
+        })
     }
 }
 

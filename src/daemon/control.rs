@@ -173,9 +173,10 @@ pub struct ControlThread<B: CanBus> {
     pub assumed_speed: f64,
     /// The cameras' frame period: how long until the next evidence (the decision's latency).
     pub frame_period: Duration,
-    /// How far ahead obstacles are searched and seen, m (the least of the depth range, the
-    /// region of interest and the obstacle range): a speed whose SLOW distance exceeds it is
-    /// logged as beyond what flyd sees in time.
+    /// How far ahead obstacles can be searched and seen, m (the least of the depth range, the
+    /// region of interest and the obstacle range, or farther up to what the rig searches as
+    /// the speed asks: `perception::range`): a speed whose SLOW distance exceeds it is logged
+    /// as beyond what flyd sees in time.
     pub range: f64,
     /// The vehicle's motion: its checks, and where its frames come from (`None`: not
     /// configured, `vehicle.motion = "none"`).
@@ -443,6 +444,7 @@ impl<B: CanBus> ControlThread<B> {
                 road: &snapshot.road,
                 tracked: &snapshot.tracked,
                 path: snapshot.path,
+                search_far: snapshot.search_far,
             };
             recorder.snapshot(next_seq(s), now, observed, input);
         }
@@ -564,9 +566,9 @@ impl<B: CanBus> ControlThread<B> {
                     speed_kmh = speed * 3.6,
                     slow_distance_m = reach,
                     range_m = self.range,
-                    "speed beyond what flyd sees in time: the SLOW distance exceeds the range \
-                     searched for obstacles (vehicle.assumed_speed_kmh is the highest speed \
-                     the configuration was checked for)"
+                    "speed beyond what flyd sees in time: the SLOW distance exceeds the farthest \
+                     the rig searches for obstacles (vehicle.assumed_speed_kmh is the highest \
+                     speed the configuration was checked for)"
                 );
             } else {
                 tracing::info!(

@@ -73,6 +73,9 @@ pub struct EvolutionThread {
     pub motion: Option<SharedMotion>,
     /// `vehicle.predict_flies`.
     pub predict_flies: bool,
+    /// `vehicle.assumed_speed_kmh` in m/s: the speed of the fan a motion fault's corridor
+    /// covers.
+    pub assumed_speed: f64,
     /// Gets each new pair (with the motion its flies were moved with) and the flies every
     /// `record.flies_every` generations.
     pub recorder: Option<crate::record::Recorder>,
@@ -96,20 +99,22 @@ impl EvolutionThread {
         let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
             let mut predicted = None;
+            let mut motion_unknown = false;
             if let Some((l, r, health)) = self.take_pair() {
-                if let (Some((previous, _)), Some(motion)) =
-                    (pair, self.motion.as_ref().and_then(SharedMotion::get))
-                {
-                    let dt = l.timestamp.saturating_sub(previous.timestamp);
-                    if self.predict_flies {
-                        self.perception.predict(motion, dt.as_secs_f64());
-                    } else {
-                        self.perception.follow(motion, dt.as_secs_f64());
-                    }
-                    predicted = Some(PredictEvent {
-                        speed: motion.speed,
-                        yaw_rate: motion.yaw_rate,
-                        dt: dt.as_secs_f64(),
+                if let (Some((previous, _)), Some(shared)) = (pair, self.motion.as_ref()) {
+                    let dt = l.timestamp.saturating_sub(previous.timestamp).as_secs_f64();
+                    let motion = shared.get();
+                    self.perception.vehicle_moved(
+                        motion,
+                        dt,
+                        self.predict_flies,
+                        self.assumed_speed,
+                    );
+                    motion_unknown = motion.is_none();
+                    predicted = motion.map(|m| PredictEvent {
+                        speed: m.speed,
+                        yaw_rate: m.yaw_rate,
+                        dt,
                     });
                 }
                 pair = Some((l, r));
@@ -147,6 +152,7 @@ impl EvolutionThread {
                             right_ns: crate::record::nanos(right.timestamp),
                             predict: predicted,
                             right_row_shift_px: Some(self.stereo.right.row_shift()),
+                            motion_unknown,
                         },
                     );
                 }
@@ -199,6 +205,7 @@ impl EvolutionThread {
                 tracked: report.tracked,
                 corridor: report.corridor,
                 path: self.perception.path_estimate(),
+                search_far: self.perception.search_far(),
                 generation_time,
                 overrun,
                 left,

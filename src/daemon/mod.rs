@@ -253,12 +253,19 @@ pub fn run(
         }
     }
     let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
-        .with_warmup(config.evolution.warmup_generations);
+        .with_warmup(config.evolution.warmup_generations)
+        .with_reach(config.decision);
     tracing::info!(
         judgeable_m = perception.judgeable_distance(),
         "perception: both cameras see the whole corridor from this distance on; a nearer \
          obstacle is confirmed only when seen coming from beyond it"
     );
+    // How far the search can reach: as configured, extended with the speed up to what the
+    // rig searches (the control thread logs a speed whose SLOW distance is beyond it).
+    let search_limit = perception
+        .search_far()
+        .max(perception.reach().map_or(0.0, |r| r.cap()));
+    log_resolution(config, &rig);
     let decider = Decider::new(config.decision)?;
     let recording = start_recording(config, &rig)?;
     let recorder = recording.as_ref().map(|r| r.recorder.clone());
@@ -361,6 +368,7 @@ pub fn run(
         sensor: SensorMonitor::new(config.sensor),
         motion: config.motion().map(|_| motion.clone()),
         predict_flies: config.vehicle.predict_flies,
+        assumed_speed: config.vehicle.assumed_speed,
         recorder: recorder.clone(),
         rows: Some(rows_monitor),
     };
@@ -396,11 +404,7 @@ pub fn run(
         can_silence: config.control.can_silence,
         assumed_speed: config.vehicle.assumed_speed,
         frame_period: config.cameras.frame_period(),
-        range: config
-            .engine
-            .max_depth
-            .min(config.engine.roi.map_or(f64::INFINITY, |r| r.max_ahead))
-            .min(config.perception.obstacle.max_distance),
+        range: search_limit,
         motion: config.motion().map(|m| MotionInputs {
             monitor: MotionMonitor::new(m),
             id: config.can.messages.motion.id,
@@ -478,6 +482,33 @@ impl Recording {
 }
 
 /// Starts the recorder when `[record]` has a path or `[live]` listens.
+/// Logs how well the rig resolves the SLOW distance at the assumed speed: a warning when one
+/// pixel of disparity there is more than the decision's margin.
+fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
+    let Some(r) = config.resolution(rig) else {
+        return;
+    };
+    if r.enough() {
+        tracing::info!(
+            speed_kmh = r.speed * 3.6,
+            slow_distance_m = r.slow_distance,
+            depth_error_per_px_m = r.error_per_pixel,
+            resolved_m = r.resolved,
+            "the rig resolves the SLOW distance at the assumed speed within the margin"
+        );
+    } else {
+        tracing::warn!(
+            speed_kmh = r.speed * 3.6,
+            slow_distance_m = r.slow_distance,
+            depth_error_per_px_m = r.error_per_pixel,
+            margin_m = r.margin,
+            resolved_m = r.resolved,
+            "the rig cannot resolve the SLOW distance at the assumed speed: one pixel of \
+             disparity there (Z^2 / (f B)) is more depth than the decision's margin"
+        );
+    }
+}
+
 fn start_recording(
     config: &DaemonConfig,
     rig: &flyd_core::geometry::StereoRig,

@@ -40,6 +40,8 @@ pub struct Snapshot {
     pub corridor: CorridorCounts,
     /// The paths the corridor follows (none: straight, no trusted motion).
     pub path: Option<PathEstimate>,
+    /// How far ahead this frame was searched, metres (`Perception::search_far`).
+    pub search_far: f64,
     /// Wall time of both engines' generation plus the perception stages.
     pub generation_time: Duration,
     /// `generation_time` over the configured maximum.

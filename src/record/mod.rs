@@ -483,6 +483,8 @@ pub struct Observed<'a> {
     pub tracked: &'a flyd_core::perception::Tracked,
     /// The paths the corridor followed (none: straight, no trusted motion).
     pub path: Option<flyd_core::path::PathEstimate>,
+    /// How far ahead the frame was searched, metres.
+    pub search_far: f64,
 }
 
 impl Recorder {
@@ -515,6 +517,7 @@ impl Recorder {
             generation_us: o.generation_time.as_secs_f64() * 1e6,
             path_curvature: o.path.map(|p| p.held.curvature),
             path_curvature_now: o.path.map(|p| p.now.curvature),
+            search_far_m: Some(o.search_far),
         };
         let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);
         self.perception(event, obstacle, o.tracked.confirmed);

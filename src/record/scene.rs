@@ -317,6 +317,7 @@ mod tests {
             generation_us: 100.0,
             path_curvature,
             path_curvature_now: path_curvature,
+            search_far_m: Some(40.0),
         }
     }
 

@@ -172,6 +172,11 @@ pub struct PairEvent {
     /// the daemon corrected rows (the configuration's value then).
     #[serde(default)]
     pub right_row_shift_px: Option<f64>,
+    /// The vehicle's motion was configured but not trusted before this pair (a motion fault):
+    /// its corridor was the fan of `perception.obstacle.fault_yaw_rate`
+    /// (`Perception::motion_unknown`); false in recordings made before the fan.
+    #[serde(default)]
+    pub motion_unknown: bool,
 }
 
 impl PairEvent {
@@ -182,6 +187,7 @@ impl PairEvent {
         ("right_ns", INT),
         ("predict", OPT_OBJ),
         ("right_row_shift_px", OPT_NUM),
+        ("motion_unknown", BOOL),
     ];
 }
 
@@ -224,6 +230,11 @@ pub struct PerceptionEvent {
     /// ... and of the arc of the moment, which an obstacle must also be on.
     #[serde(default)]
     pub path_curvature_now: Option<f64>,
+    /// How far ahead the flies and the obstacle stage searched on this frame, metres: the
+    /// configured ranges, or farther at a speed whose SLOW distance lies beyond them
+    /// (`flyd_core::perception::range`). None in recordings made before it.
+    #[serde(default)]
+    pub search_far_m: Option<f64>,
 }
 
 impl PerceptionEvent {
@@ -246,6 +257,7 @@ impl PerceptionEvent {
         ("generation_us", NUM),
         ("path_curvature", OPT_NUM),
         ("path_curvature_now", OPT_NUM),
+        ("search_far_m", OPT_NUM),
     ];
 }
 

@@ -216,6 +216,8 @@ pub struct TraceRow {
     pub reason: CommandReason,
     /// The speed the decision took, m/s.
     pub speed: f64,
+    /// How far ahead the frame was searched, metres ([`Perception::search_far`]).
+    pub search_far: f64,
     /// Wall time of the whole step (both engines and the perception stage).
     pub elapsed: Duration,
     /// Of which the road fit and the obstacle stage.
@@ -263,7 +265,8 @@ impl Replay {
 /// more).
 pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, ReplayError> {
     let mut perception = Perception::new(feed.rig(), settings.params.clone(), settings.perception)?
-        .with_warmup(settings.warmup_generations);
+        .with_warmup(settings.warmup_generations)
+        .with_reach(settings.decision);
     let mut decider = Decider::new(settings.decision)?;
     let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
@@ -300,11 +303,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             {
                 let dt = (wanted - previous) as f64 / fps;
                 // The corridor follows the motion's path either way, as the daemon's does.
-                if settings.predict {
-                    perception.predict(motion, dt);
-                } else {
-                    perception.follow(motion, dt);
-                }
+                perception.vehicle_moved(Some(motion), dt, settings.predict, settings.speed);
                 predicted = Some((motion, dt));
             }
             feed.load(wanted, &mut frame, &mut left)?;
@@ -403,6 +402,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             command: decision.map_or(decider.command(), |d| d.command),
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
             speed,
+            search_far: perception.search_far(),
             elapsed,
             stage,
             health,
@@ -478,6 +478,7 @@ impl ReplayRecording {
                     dt,
                 }),
                 right_row_shift_px: Some(frame.right.row_shift()),
+                motion_unknown: false,
             },
         );
     }
@@ -504,6 +505,7 @@ impl ReplayRecording {
             road: &report.road,
             tracked: &report.tracked,
             path: perception.path_estimate(),
+            search_far: perception.search_far(),
         };
         r.snapshot(self.seq, at, observed, input);
         let Some(decision) = decision else {
@@ -632,6 +634,7 @@ mod tests {
                 },
                 corridor: CorridorCounts::default(),
                 speed: 0.0,
+                search_far: 40.0,
                 command: if w >= 1.5 {
                     Command::Stop
                 } else {

@@ -79,7 +79,8 @@ pub const TRACE_HEADER: &str = "generation,frame,frame_name,new_frame,time_s,glo
 visible,road_source,road_height,road_pitch_deg,road_roll_deg,road_inliers,corridor_flies,\
 unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_near,obstacle_lateral,\
 obstacle_bottom,obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
-left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh";
+left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh,\
+search_far_m";
 
 /// One row of `trace.csv` (no newline).
 fn trace_line(r: &TraceRow) -> String {
@@ -90,7 +91,7 @@ fn trace_line(r: &TraceRow) -> String {
     let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
         "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
-         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2}",
+         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1}",
         r.stats.generation,
         r.frame,
         r.frame_name,
@@ -127,6 +128,7 @@ fn trace_line(r: &TraceRow) -> String {
         frac(l.unchanged),
         frac(rh.unchanged),
         r.speed * 3.6,
+        r.search_far,
     )
 }
 

@@ -112,6 +112,7 @@ struct Outcome {
     road: flyd_core::perception::RoadEstimate,
     tracked: flyd_core::perception::Tracked,
     path: Option<flyd_core::path::PathEstimate>,
+    search_far: f64,
 }
 
 /// What the replay needs to write a recording of itself (`flyd replay --mcap --record`).
@@ -225,8 +226,10 @@ fn replay_perception(
     } = config.load_calibration()?;
     let (w, h) = (config.cameras.width, config.cameras.height);
     let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
-        .with_warmup(config.evolution.warmup_generations);
+        .with_warmup(config.evolution.warmup_generations)
+        .with_reach(config.decision);
     let predict_flies = config.vehicle.predict_flies;
+    let assumed_speed = config.vehicle.assumed_speed;
     let image = || PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
     let right = image()?.with_row_shift(right_row_offset_px);
     let mut stereo = StereoFrame::new(image()?, right, 0);
@@ -322,17 +325,16 @@ fn replay_perception(
         }
         last_at = Duration::from_nanos(pair.left_ns.max(pair.right_ns));
         stereo.id = pair.pair_id;
+        // As the daemon did: the flies moved only with vehicle.predict_flies; a motion fault's
+        // fan at the assumed speed.
         if let Some(p) = pair.predict {
             let motion = VehicleMotion {
                 speed: p.speed,
                 yaw_rate: p.yaw_rate,
             };
-            // The daemon moved the flies with it only with vehicle.predict_flies.
-            if predict_flies {
-                perception.predict(motion, p.dt);
-            } else {
-                perception.follow(motion, p.dt);
-            }
+            perception.vehicle_moved(Some(motion), p.dt, predict_flies, assumed_speed);
+        } else if pair.motion_unknown {
+            perception.vehicle_moved(None, 0.0, predict_flies, assumed_speed);
         }
         generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
         if generation != pair.generation {
@@ -394,6 +396,7 @@ fn step(
         road: report.road,
         tracked: report.tracked,
         path: perception.path_estimate(),
+        search_far: perception.search_far(),
     };
     // Generations count up by one from 1: this is the next slot.
     if usize::try_from(g).is_ok_and(|i| i == outcomes.len()) {
@@ -509,6 +512,7 @@ fn replay_decisions(
                         road: &o.road,
                         tracked: &o.tracked,
                         path: o.path,
+                        search_far: o.search_far,
                     };
                     r.snapshot(p.seq, t, observed, &input);
                 }

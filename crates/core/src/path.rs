@@ -74,6 +74,25 @@ impl PredictedPath {
     }
 }
 
+/// The fan of every path bending at most `max_curvature` either way (1/m): the arc of it
+/// nearest to the vehicle-frame point `(x, z)`, ahead (`z > 0`). The arc through the point
+/// has curvature `-2x / (x^2 + z^2)`; within the fan the point is on a path (offset 0),
+/// outside it the fan's edge on its side is the nearest. What the vehicle could reach when its
+/// yaw rate is not known; the straight path is always in it.
+pub fn nearest_in_fan(max_curvature: f64, x: f32, z: f32) -> PredictedPath {
+    let (x, z) = (f64::from(x), f64::from(z));
+    let r2 = x * x + z * z;
+    let k = if r2 > 0.0 { -2.0 * x / r2 } else { 0.0 };
+    let max = max_curvature.abs().min(MAX_CURVATURE);
+    PredictedPath {
+        curvature: if k.is_finite() {
+            k.clamp(-max, max)
+        } else {
+            0.0
+        },
+    }
+}
+
 /// The paths the obstacle stage's corridor follows ([`PathEstimator::update`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct PathEstimate {
@@ -192,6 +211,36 @@ impl PathEstimator {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_fan_holds_every_path_up_to_its_curvature_and_the_straight_box() {
+        let k = 1.0 / 55.0;
+        // On any path of the fan: offset 0, the distance that path's.
+        for c in [-k, -k / 2.0, 0.0, k / 3.0, k] {
+            let path = PredictedPath { curvature: c };
+            let (x, z) = path.point(20.0);
+            let (along, off) = nearest_in_fan(k, x as f32, z as f32).locate(x as f32, z as f32);
+            assert!(
+                off.abs() < 1e-4 && (along - 20.0).abs() < 1e-3,
+                "{c}: {along} {off}"
+            );
+        }
+        // Beyond the fan: off its edge on that side, by as much as off that edge's path.
+        let edge = PredictedPath { curvature: k };
+        let (x, z) = edge.point(20.0);
+        let (x, z) = (x as f32 - 2.0, z as f32);
+        assert_eq!(nearest_in_fan(k, x, z), edge);
+        assert_eq!(nearest_in_fan(k, x, z).locate(x, z), edge.locate(x, z));
+        // Never farther off than from the straight path: the straight box is in the fan.
+        for (x, z) in [(1.1f32, 3.0f32), (-1.1, 30.0), (5.0, 10.0), (-8.0, 40.0)] {
+            let off = nearest_in_fan(k, x, z).locate(x, z).1;
+            assert!(off.abs() <= x.abs() + 1e-5, "({x}, {z}): {off}");
+        }
+        // A fan of no curvature is the straight path; the curvature is bounded.
+        assert_eq!(nearest_in_fan(0.0, 3.0, 10.0), PredictedPath::STRAIGHT);
+        assert_eq!(nearest_in_fan(5.0, 3.0, 1.0).curvature, -MAX_CURVATURE);
+        assert_eq!(nearest_in_fan(k, 0.0, 0.0), PredictedPath::STRAIGHT);
+    }
 
     #[test]
     fn a_straight_path_is_the_vehicle_frame_bit_for_bit() {

@@ -167,10 +167,13 @@ const AMBIGUITY_FLIES: usize = 512;
 /// Probes one [`Engine::sweep`] evaluates at once, at most.
 const SWEEP_POINTS: usize = 4096;
 
-/// What an engine is built with and never changes: the parameters, the cameras' projections
-/// and the domain new flies are drawn from.
+/// What an engine is built with: the parameters, the cameras' projections and the domain new
+/// flies are drawn from. Only the setters change it: the road and the corridor new flies are
+/// drawn in, and how far the search reaches ([`Engine::set_reach`]).
 struct Setup {
     params: EngineParams,
+    /// `max_depth` and `roi.max_ahead` as configured: the reach never searches less.
+    configured_far: (f64, Option<f64>),
     left: Projector,
     right: Projector,
     sampler: Sampler,
@@ -246,6 +249,7 @@ impl Engine {
             left: Projector::new(&rig.left),
             right: Projector::new(&rig.right),
             right_camera: rig.right.clone(),
+            configured_far: (params.max_depth, params.roi.map(|r| r.max_ahead)),
             params,
         };
         let params = &setup.params;
@@ -326,6 +330,22 @@ impl Engine {
 
     pub fn params(&self) -> &EngineParams {
         &self.setup.params
+    }
+
+    /// Searches as far as `far` metres ahead from now on, never less than the configured
+    /// `max_depth` and `roi.max_ahead` (a `far` within them, or not finite, restores them):
+    /// new flies are drawn, and flies are judged in the region of interest, up to the
+    /// farther of the two. The caller caps `far` at what the rig resolves
+    /// ([`crate::perception::range::SearchReach`]). No allocation.
+    pub fn set_reach(&mut self, far: f64) {
+        let far = if far.is_finite() { far } else { 0.0 };
+        let (depth, ahead) = self.setup.configured_far;
+        let params = &mut self.setup.params;
+        params.max_depth = depth.max(far);
+        if let (Some(roi), Some(ahead)) = (params.roi.as_mut(), ahead) {
+            roi.max_ahead = ahead.max(far);
+        }
+        self.setup.sampler.set_far(params);
     }
 
     pub fn population(&self) -> &Population {

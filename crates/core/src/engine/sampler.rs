@@ -286,12 +286,7 @@ impl Sampler {
                 });
             }
         }
-        // With a road region of interest, new flies are drawn inside it: flies outside it get
-        // the penalised fitness anyway, so drawing them there only wastes evaluations.
-        let far = match &params.roi {
-            Some(roi) => params.max_depth.min(roi.max_ahead),
-            None => params.max_depth,
-        };
+        let far = Self::far(params);
         let heights = params
             .roi
             .map(|roi| (roi.min_height as f32, roi.max_height as f32));
@@ -320,6 +315,21 @@ impl Sampler {
             c: [origin.x as f32, origin.y as f32, origin.z as f32],
             corridor: None,
         })
+    }
+
+    /// The farthest depth new flies are drawn at: with a road region of interest, within it
+    /// (flies outside it get the penalised fitness anyway, so drawing them there only wastes
+    /// evaluations).
+    fn far(params: &EngineParams) -> f64 {
+        match &params.roi {
+            Some(roi) => params.max_depth.min(roi.max_ahead),
+            None => params.max_depth,
+        }
+    }
+
+    /// Draws new flies up to `params`' farthest depth from now on.
+    pub(super) fn set_far(&mut self, params: &EngineParams) {
+        self.inv_depth.0 = (1.0 / Self::far(params)) as f32;
     }
 
     /// A new random fly (see the module docs); the flag says whether both cameras see it.

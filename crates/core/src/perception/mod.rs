@@ -12,6 +12,7 @@
 
 pub mod dense;
 pub mod obstacle;
+pub mod range;
 pub mod road;
 pub mod track;
 
@@ -20,9 +21,11 @@ use serde::{Deserialize, Serialize};
 pub use obstacle::{
     CorridorCounts, Obstacle, ObstacleConfig, ObstacleFinder, PerceptionParamError,
 };
+pub use range::{Resolution, SearchReach};
 pub use road::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
 pub use track::{TrackConfig, Tracked, Tracker};
 
+use crate::decision::{DecisionConfig, DecisionMode};
 use crate::engine::{Corridor, Engine, EngineError, EngineParams, GenerationStats};
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
@@ -100,6 +103,15 @@ pub fn judgeable_distance(rig: &StereoRig, obstacle: &ObstacleConfig, min_depth:
     z.max(min_depth)
 }
 
+/// How far ahead `params` and `obstacle` search: the least of the depth range, the region
+/// of interest and the obstacle range, metres.
+fn search_far(params: &EngineParams, obstacle: &ObstacleConfig) -> f64 {
+    params
+        .max_depth
+        .min(params.roi.map_or(f64::INFINITY, |r| r.max_ahead))
+        .min(obstacle.max_distance)
+}
+
 /// Why perception cannot be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PerceptionError {
@@ -141,6 +153,17 @@ pub struct Perception {
     path_estimator: PathEstimator,
     /// The paths the current frame's corridor follows; none: straight, no trusted motion.
     followed: Option<PathEstimate>,
+    /// With [`Perception::with_reach`]: the search reaches the SLOW distance at the speed of
+    /// the motion given for the next new frame (`pending_reach`), from that frame on.
+    reach: Option<SearchReach>,
+    pending_reach: Option<f64>,
+    /// The next new frame's corridor is the fan of this curvature either way, 1/m
+    /// ([`Perception::motion_unknown`]).
+    pending_fan: Option<f64>,
+    /// How far the current frame is searched, metres (see [`Perception::search_far`]).
+    search_far: f64,
+    /// The rig's f B, pixel metres.
+    fb: f64,
 }
 
 impl Perception {
@@ -168,6 +191,7 @@ impl Perception {
         }
         let prior = RoadPlane::FLAT;
         let fb = rig.right.intrinsics().fx * rig.baseline();
+        let far = search_far(engine.params(), &config.obstacle);
         Ok(Self {
             engine,
             road: RoadEstimator::new(config.road, prior),
@@ -195,6 +219,11 @@ impl Perception {
             },
             path_estimator: PathEstimator::new(config.obstacle.path_hold_s),
             followed: None,
+            reach: None,
+            pending_reach: None,
+            pending_fan: None,
+            search_far: far,
+            fb,
             config,
             warmup: 0,
             predicted_path: None,
@@ -209,6 +238,33 @@ impl Perception {
             warmup: generations,
             ..self
         }
+    }
+
+    /// The search follows the speed: on each new frame after a [`Perception::predict`] or
+    /// [`Perception::follow`], the flies and the obstacle stage reach the SLOW distance of
+    /// `decision` at that motion's speed, never less than configured and at most what the
+    /// rig searches ([`SearchReach`]); a frame without a trusted motion is searched as
+    /// configured (which start-up checked against the assumed speed). Only in the obstacle
+    /// mode: the global warning has no distance to reach.
+    pub fn with_reach(self, decision: DecisionConfig) -> Self {
+        if decision.mode != DecisionMode::Obstacle {
+            return self;
+        }
+        Self {
+            reach: Some(SearchReach::new(decision, self.fb)),
+            ..self
+        }
+    }
+
+    /// The speed-dependent search, if [`Perception::with_reach`] set one.
+    pub fn reach(&self) -> Option<&SearchReach> {
+        self.reach.as_ref()
+    }
+
+    /// How far ahead the current frame is searched, metres: the least of the depth range,
+    /// the region of interest and the obstacle stage's range, as the speed extended them.
+    pub fn search_far(&self) -> f64 {
+        self.search_far
     }
 
     /// The engine.
@@ -254,6 +310,50 @@ impl Perception {
         if self.config.obstacle.follow_path {
             self.predicted_path = Some(self.path_estimator.update(motion, dt));
         }
+        self.pending_reach = self.reach.map(|r| r.at(motion.speed));
+        self.pending_fan = None;
+    }
+
+    /// The vehicle's motion is configured but not trusted before the next frame (a motion
+    /// fault): with `obstacle.follow_path`, that frame's corridor covers every path the
+    /// vehicle could take at `obstacle.fault_yaw_rate` either way at `speed` m/s (the speed
+    /// the decision assumes then), never less than the straight box; the flies stay.
+    pub fn motion_unknown(&mut self, speed: f64) {
+        let o = &self.config.obstacle;
+        self.pending_fan = o.follow_path.then(|| {
+            crate::path::PredictedPath::of_motion(crate::motion::VehicleMotion {
+                speed: speed.abs(),
+                yaw_rate: o.fault_yaw_rate,
+            })
+            .curvature
+        });
+        self.predicted_path = None;
+        self.pending_reach = None;
+    }
+
+    /// The vehicle's motion over the `dt` seconds before the next frame, as the daemon and
+    /// every replay hand it over: trusted (`Some`), the flies moved with it when
+    /// `predict_flies` ([`Perception::predict`]) or its path only ([`Perception::follow`]);
+    /// configured but not trusted (`None`): [`Perception::motion_unknown`] at
+    /// `assumed_speed`.
+    pub fn vehicle_moved(
+        &mut self,
+        motion: Option<crate::motion::VehicleMotion>,
+        dt: f64,
+        predict_flies: bool,
+        assumed_speed: f64,
+    ) {
+        match motion {
+            Some(m) if predict_flies => self.predict(m, dt),
+            Some(m) => self.follow(m, dt),
+            None => self.motion_unknown(assumed_speed),
+        }
+    }
+
+    /// The fan the current frame's corridor covers (its largest curvature either way, 1/m):
+    /// the vehicle's motion was not trusted ([`Perception::motion_unknown`]).
+    pub fn fan(&self) -> Option<f64> {
+        self.finder.fan()
     }
 
     /// The path the obstacle stage's corridor follows on the current frame.
@@ -291,6 +391,16 @@ impl Perception {
             }
             let path = self.followed.unwrap_or(PathEstimate::STRAIGHT);
             self.finder.set_paths(path.held, path.now);
+            if let Some(k) = self.pending_fan.take() {
+                self.finder.set_fan(k);
+            }
+            if self.reach.is_some() {
+                let far = self.pending_reach.take().unwrap_or(0.0);
+                self.engine.set_reach(far);
+                let o = &self.config.obstacle;
+                self.finder.set_max_distance(o.max_distance.max(far));
+                self.search_far = search_far(self.engine.params(), self.finder.config());
+            }
         }
         self.report.stats = stats;
         self.report.estimated = false;

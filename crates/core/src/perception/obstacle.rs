@@ -102,6 +102,12 @@ pub struct ObstacleConfig {
     /// bend is followed once it has lasted this, a lane change's or a correction's brief yaw
     /// rate is not extrapolated over the SLOW distance. 0: the yaw rate of the moment.
     pub path_hold_s: f64,
+    /// With `follow_path`, while the vehicle's motion is configured but not trusted (a
+    /// motion fault), the corridor covers every path the vehicle could take at this yaw rate
+    /// either way, at the assumed speed (a fan of arcs up to `fault_yaw_rate / speed`,
+    /// [`crate::path::nearest_in_fan`]; never less than the straight box), rad/s. 0: the
+    /// straight box.
+    pub fault_yaw_rate: f64,
     /// A cluster whose lowest fly is higher than this above the road is no obstacle, metres
     /// (see the module docs, step 4).
     pub max_bottom: f64,
@@ -147,6 +153,7 @@ impl Default for ObstacleConfig {
             corridor_half_width: 1.2,
             follow_path: true,
             path_hold_s: 2.0,
+            fault_yaw_rate: 0.15,
             min_height: 0.3,
             max_height: 2.0,
             max_distance: 40.0,
@@ -280,6 +287,8 @@ impl ObstacleConfig {
         within("obstacle.max_distance", self.max_distance, 5.0, 200.0)?;
         within("obstacle.max_bottom", self.max_bottom, 0.5, 5.0)?;
         within("obstacle.path_hold_s", self.path_hold_s, 0.0, 5.0)?;
+        // At most the largest plausible yaw rate a VCU_Motion frame may carry (1.5 rad/s).
+        within("obstacle.fault_yaw_rate", self.fault_yaw_rate, 0.0, 1.5)?;
         within("obstacle.max_ambiguity", self.max_ambiguity, 0.1, 1.0)?;
         within(
             "obstacle.max_line_ambiguity",
@@ -360,6 +369,9 @@ pub struct ObstacleFinder {
     /// A fly is in the corridor only if it is also this close to this path (the arc the
     /// vehicle is turning on now, while it has not held it: [`crate::path::PathEstimate`]).
     gate: PredictedPath,
+    /// Instead of the path: the fan of every path up to this curvature either way, 1/m
+    /// (a motion fault: [`ObstacleConfig::fault_yaw_rate`]).
+    fan: Option<f64>,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
     /// The sampled flies (what the stage needs of each, read once from the population) and
@@ -440,6 +452,7 @@ impl ObstacleFinder {
             config,
             path: PredictedPath::STRAIGHT,
             gate: PredictedPath::STRAIGHT,
+            fan: None,
             pixels_per_inverse_depth,
             sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
@@ -477,6 +490,27 @@ impl ObstacleFinder {
     pub fn set_paths(&mut self, path: PredictedPath, gate: PredictedPath) {
         self.path = path;
         self.gate = gate;
+        self.fan = None;
+    }
+
+    /// The corridor covers every path bending up to `max_curvature` (1/m) either way from the
+    /// next [`ObstacleFinder::find`] on, until [`ObstacleFinder::set_paths`]: a fly's distance
+    /// is along the nearest of those paths, its offset from it ([`crate::path::nearest_in_fan`]).
+    pub fn set_fan(&mut self, max_curvature: f64) {
+        self.set_paths(PredictedPath::STRAIGHT, PredictedPath::STRAIGHT);
+        self.fan = (max_curvature != 0.0).then_some(max_curvature.abs());
+    }
+
+    /// The fan the corridor covers (its largest curvature, 1/m), if it does.
+    pub fn fan(&self) -> Option<f64> {
+        self.fan
+    }
+
+    /// Looks `max_distance` metres ahead along the path from the next
+    /// [`ObstacleFinder::find`] on (the configured `max_distance` unless set:
+    /// [`crate::perception::range`]).
+    pub fn set_max_distance(&mut self, max_distance: f64) {
+        self.config.max_distance = max_distance;
     }
 
     /// The path the corridor follows.
@@ -541,13 +575,15 @@ impl ObstacleFinder {
         let cell_px = c.cell_px.max(1) as f32;
         let mut i = 0usize;
         let mut scanned = 0;
-        let (path, gate) = (self.path, self.gate);
+        let (path, gate, fan) = (self.path, self.gate, self.fan);
         let gated = gate != path;
         while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
             let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
             let h = y - (r0 + rz * z + rx * x);
             // Where it is along the predicted path and off it (straight: z and x).
-            let (along, off) = if !path.is_straight() && z > 0.0 {
+            let (along, off) = if let Some(k) = fan.filter(|_| z > 0.0) {
+                crate::path::nearest_in_fan(k, x, z).locate(x, z)
+            } else if !path.is_straight() && z > 0.0 {
                 path.locate(x, z)
             } else {
                 (z, x)
@@ -646,7 +682,7 @@ impl ObstacleFinder {
         let f_b = self.pixels_per_inverse_depth;
         // Half a pixel of disparity nearer: in depth, then along the path by as much.
         let near_depth = f_b / (f_b / depth + c.disparity_error_px);
-        let (distance, near) = if self.path.is_straight() {
+        let (distance, near) = if self.path.is_straight() && self.fan.is_none() {
             (depth, near_depth)
         } else {
             let along = quantile(&mut self.scratch, |u| u.along, 1);
