@@ -682,3 +682,46 @@ fn an_mjpeg_camera_is_recorded_as_its_jpeg_and_replays_bit_for_bit() {
         "the demo's STOP through the MJPEG path: {s}"
     );
 }
+
+/// A camera that goes blind mid-run (hw-mock's left camera delivers noise from 2 to 3.5 s):
+/// the daemon debounces it into the BLIND sensor fault and CAMERA_ERROR, and the replay of
+/// the recording (which runs the same `BlindDebounce`, `flyd_core::policy`) reproduces every
+/// command frame byte for byte.
+#[test]
+fn a_recording_where_a_camera_goes_blind_replays_its_commands_bit_for_bit() {
+    use flyd_core::can::candump::parse_candump_line;
+    use flyd_core::can::messages::{CanMessage, StatusMsg};
+    use flyd_core::sensor::SensorFaults;
+    use flyd_core::status::FaultBits;
+
+    let fault = "[[cameras.mock_faults]]\nkind = \"noise\"\ncamera = \"left\"\nfrom_s = 2.0\n\
+                 to_s = 3.5\n\n[calibration]";
+    let r = record_with(|demo| demo.replacen("[calibration]", fault, 1), None);
+    let log = std::fs::read_to_string(&r.log).expect("can log");
+    let frames: Vec<(u32, Vec<u8>)> = log
+        .lines()
+        .filter_map(|l| parse_candump_line(l).ok())
+        .map(|(_, _, id, data)| (id, data))
+        .collect();
+    let blind = frames
+        .iter()
+        .filter(|(id, _)| *id == StatusMsg::DEFAULT_ID)
+        .filter_map(|(_, data)| StatusMsg::decode(data).ok())
+        .filter(|s| {
+            s.sensor.contains(SensorFaults::BLIND) && s.faults.contains(FaultBits::CAMERA_ERROR)
+        })
+        .count();
+    assert!(blind > 5, "{blind} FLYD_Status frames say BLIND");
+    let commands = frames
+        .iter()
+        .filter(|(id, _)| *id == flyd_core::can::messages::CommandMsg::DEFAULT_ID)
+        .count();
+    let summary = replay_ok(&r.mcap, &[]);
+    assert_eq!(summary["commands_recorded"].as_u64(), Some(commands as u64));
+    assert_eq!(
+        summary["commands_identical"].as_u64(),
+        Some(commands as u64),
+        "{summary}"
+    );
+    assert_eq!(summary["divergence"], serde_json::Value::Null, "{summary}");
+}
