@@ -17,30 +17,7 @@
 use flyd_core::frame::PreparedImage;
 use std::time::Duration;
 
-/// Which camera.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Side {
-    Left,
-    Right,
-}
-
-impl Side {
-    pub fn name(self) -> &'static str {
-        match self {
-            Side::Left => "left",
-            Side::Right => "right",
-        }
-    }
-}
-
-/// What a source knows about a frame it delivered.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct FrameMeta {
-    /// Capture time on CLOCK_MONOTONIC.
-    pub timestamp: Duration,
-    /// Sequence number from the device (gaps mean the driver dropped frames).
-    pub sequence: u64,
-}
+pub use flyd_core::pairing::{FrameMeta, Side};
 
 /// What caused a [`SourceError`] (an I/O error of the device, a frame that does not decode).
 pub type Cause = Box<dyn std::error::Error + Send + Sync>;

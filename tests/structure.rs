@@ -8,7 +8,7 @@
 //! paths (`flyd_core::`, `std::`) are not edges.
 //!
 //! Granularity: a node is a module at most two levels deep, a top-level module (`engine`,
-//! `daemon`) or one of its direct submodules (`engine::fitness`, `daemon::pairer`); deeper
+//! `daemon`) or one of its direct submodules (`engine::fitness`, `daemon::control`); deeper
 //! modules and inline modules (`mod tests { .. }`) count as the two-level module holding them.
 //! A path names the deepest known module it goes through (`crate::engine::Engine` is `engine`,
 //! `crate::can::messages::MotionMsg` is `can::messages`). Two graphs must have no circle:
@@ -688,6 +688,7 @@ const CORE_LAYERS: &[&[&str]] = &[
         "isa",
         "macros",
         "motion",
+        "pairing",
         "path",
         "road",
         "status",
@@ -697,7 +698,7 @@ const CORE_LAYERS: &[&[&str]] = &[
     &["decision", "frame"],
     &["engine"],
     &["calib", "sensor"],
-    &["dataset", "perception", "policy", "rectification"],
+    &["dataset", "faults", "perception", "policy", "rectification"],
     &["can"],
 ];
 

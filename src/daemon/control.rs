@@ -44,7 +44,6 @@ use crossbeam_channel::Receiver;
 
 use super::capture::CameraHealth;
 use super::evolution::EvolutionCounters;
-use super::faults::{FaultMonitor, Observation};
 use super::notify::ServiceNotifier;
 use super::ring::RingCounters;
 use super::snapshot::Snapshot;
@@ -59,6 +58,7 @@ use flyd_core::can::motion::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::faults::{FaultMonitor, Observation};
 use flyd_core::perception::RoadSource;
 use flyd_core::policy::{InputSource, PeriodInput};
 use flyd_core::sensor::SensorFaults;

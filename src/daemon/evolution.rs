@@ -25,7 +25,6 @@ use std::time::Duration;
 
 use crossbeam_channel::{Sender, TrySendError};
 
-use super::pairer::{PairOutcome, Pairer};
 use super::ring::FrameReader;
 use super::shared_motion::SharedMotion;
 use super::snapshot::Snapshot;
@@ -37,6 +36,7 @@ use crate::source::Side;
 use crate::thread::Shutdown;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
+use flyd_core::pairing::{PairOutcome, Pairer};
 use flyd_core::perception::{Perception, RoadEstimate, RoadSource};
 use flyd_core::policy::{BlindDebounce, Blindness};
 use flyd_core::sensor::{ImageHealth, SensorFaults, SensorMonitor, SensorVerdict};

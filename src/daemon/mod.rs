@@ -10,10 +10,10 @@
 //! - [`capture`]: one thread per camera, `FrameSource::next_frame` straight into a ring slot;
 //!   never blocks on a consumer, polls with a timeout, reopens a failing device with backoff.
 //! - [`ring`]: lock-free newest-frame slots (triple buffer), drops counted.
-//! - [`pairer`]: left/right matching by capture timestamp (pure).
+//! - [`flyd_core::pairing`]: left/right matching by capture timestamp (pure, in the core).
 //! - [`evolution`]: one generation per period on the newest pair, [`Snapshot`]s out with
 //!   `try_send` (never blocks).
-//! - [`control`]: decisions ([`flyd_core::decision::Decider`]), fault detection ([`faults`]), CAN
+//! - [`control`]: decisions ([`flyd_core::decision::Decider`]), fault detection ([`flyd_core::faults`]), CAN
 //!   frames at fixed periods, logs, systemd notifications ([`notify`]).
 //!
 //! # Invariants
@@ -34,10 +34,8 @@ pub mod bench;
 pub mod capture;
 pub mod control;
 pub mod evolution;
-pub mod faults;
 pub mod hardware;
 pub mod notify;
-pub mod pairer;
 pub mod ring;
 pub mod rows;
 pub mod shared_motion;
@@ -63,17 +61,17 @@ use crate::source::Side;
 use capture::{CameraHealth, CaptureThread};
 use control::{ControlThread, Inputs, MotionInputs};
 use evolution::{EvolutionCounters, EvolutionThread};
-use faults::{FaultConfig, FaultMonitor};
 use flyd_core::can::bus::{CanBus, CanReceiver};
 use flyd_core::can::motion::MotionMonitor;
 use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;
+use flyd_core::faults::{FaultConfig, FaultMonitor};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::pairing::Pairer;
 use flyd_core::perception::{Perception, PerceptionError};
 use flyd_core::sensor::SensorMonitor;
 pub use notify::ServiceNotifier;
-use pairer::Pairer;
 use ring::frame_ring_of;
 
 /// Why the daemon could not start (runtime faults are not errors: see the module docs).

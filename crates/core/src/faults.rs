@@ -6,7 +6,7 @@
 //! | STEREO_SKEW | the newest snapshot reports too many consecutive rejected pairs | a pair is made |
 //! | EVOLUTION_OVERRUN | the newest generation took longer than the maximum | a generation is in time |
 //! | SNAPSHOT_STALE | no snapshot for `snapshot_timeout` (after start-up) | a snapshot arrives |
-//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or a sensor check fails ([`flyd_core::sensor`]: an image uniform or without texture, frozen, exposures far apart, or the stereo pair matching nowhere; which one is `FLYD_Status.SensorFaults`) | that camera delivers again; the images are healthy again |
+//! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or a sensor check fails ([`crate::sensor`]: an image uniform or without texture, frozen, exposures far apart, or the stereo pair matching nowhere; which one is `FLYD_Status.SensorFaults`) | that camera delivers again; the images are healthy again |
 //! | CAN_TX_ERROR | the last CAN write failed | a write succeeds |
 //!
 //! During start-up (until the daemon is running, at most `startup_timeout`), missing frames and
@@ -18,8 +18,8 @@
 
 use std::time::Duration;
 
-use flyd_core::sensor::SensorFaults;
-use flyd_core::status::{FaultBits, State};
+use crate::sensor::SensorFaults;
+use crate::status::{FaultBits, State};
 
 /// What the control thread saw, at time `now`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

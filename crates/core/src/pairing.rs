@@ -1,4 +1,5 @@
-//! Left/right pairing by capture timestamp (pure: no clock, no threads).
+//! Left/right pairing by capture timestamp (pure: no clock, no threads): what the daemon's
+//! evolution thread pairs its cameras' frames with.
 //!
 //! The evolution thread offers each camera's newest frame as it fetches it from the ring; the
 //! pairer holds at most one candidate per side (the frame the ring reader holds) and answers
@@ -19,7 +20,30 @@
 
 use std::time::Duration;
 
-use crate::source::{FrameMeta, Side};
+/// Which camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    Left,
+    Right,
+}
+
+impl Side {
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Left => "left",
+            Side::Right => "right",
+        }
+    }
+}
+
+/// What a source knows about a frame it delivered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameMeta {
+    /// Capture time on CLOCK_MONOTONIC.
+    pub timestamp: Duration,
+    /// Sequence number from the device (gaps mean the driver dropped frames).
+    pub sequence: u64,
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairOutcome {
