@@ -13,8 +13,9 @@
 //! - [`flyd_core::pairing`]: left/right matching by capture timestamp (pure, in the core).
 //! - [`evolution`]: one generation per period on the newest pair, [`Snapshot`]s out with
 //!   `try_send` (never blocks).
-//! - [`control`]: decisions ([`flyd_core::decision::Decider`]), fault detection ([`flyd_core::faults`]), CAN
-//!   frames at fixed periods, logs, systemd notifications ([`notify`]).
+//! - [`control`]: decisions ([`flyd_core::decision::Decider`]), fault detection
+//!   ([`flyd_core::faults`]), CAN frames at fixed periods, logs, systemd notifications
+//!   ([`notify`]).
 //!
 //! # Invariants
 //! - Only the control thread writes to the CAN bus and to the systemd socket.
