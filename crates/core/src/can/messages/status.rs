@@ -1,0 +1,99 @@
+//! `FLYD_Status`: flyd's health (state, faults, sensor faults, the motion's, perception's age,
+//! generation and frame rates).
+
+use super::*;
+
+/// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
+mod layout {
+    use super::super::Field;
+
+    pub const STATE: Field = Field { start: 12, len: 3 };
+    pub const MOTION_FAULT: Field = Field { start: 15, len: 1 };
+    pub const FAULTS: Field = Field { start: 16, len: 8 };
+    pub const AGE_MS: Field = Field { start: 24, len: 12 };
+    pub const SENSOR: Field = Field { start: 36, len: 4 };
+    pub const GENERATIONS: Field = Field { start: 40, len: 8 };
+    pub const GENERATIONS_PER_UNIT: f64 = 0.5;
+    pub const FPS_LEFT: Field = Field { start: 48, len: 8 };
+    pub const FPS_RIGHT: Field = Field { start: 56, len: 8 };
+    pub const FPS_PER_UNIT: f64 = 2.0;
+}
+
+/// `FLYD_Status`: flyd's health.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StatusMsg {
+    pub state: State,
+    pub faults: FaultBits,
+    /// Age of the perception snapshot the current command was decided from; saturates at
+    /// 4095 ms (use [`Duration::MAX`] for "no snapshot yet").
+    pub perception_age: Duration,
+    /// Which sensor checks failed ([`crate::sensor`]); any of them also sets `CAMERA_ERROR`.
+    pub sensor: SensorFaults,
+    /// The vehicle's motion is not known (missing, stale, invalid or implausible `VCU_Motion`,
+    /// [`crate::motion`]): the decision assumes the configured highest speed.
+    pub motion_fault: bool,
+    /// Evolution rate, generations per second (resolution 2, saturates at 510).
+    pub generations_per_sec: f64,
+    /// Left camera frame rate, fps (resolution 0.5, saturates at 127.5).
+    pub cam_fps_left: f64,
+    /// Right camera frame rate, fps (resolution 0.5, saturates at 127.5).
+    pub cam_fps_right: f64,
+}
+
+impl CanMessage for StatusMsg {
+    const NAME: &'static str = "FLYD_Status";
+    const DEFAULT_ID: u32 = 0x121;
+    const DEFAULT_DATA_ID: u16 = 0x0121;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+
+    fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
+        use layout::*;
+        let mut w = 0u64;
+        STATE.put(&mut w, u64::from(self.state.raw()));
+        MOTION_FAULT.put(&mut w, u64::from(self.motion_fault));
+        FAULTS.put(&mut w, u64::from(self.faults.bits()));
+        let age_ms = u64::try_from(self.perception_age.as_millis()).unwrap_or(u64::MAX);
+        AGE_MS.put(&mut w, age_ms.min(AGE_MS.max_unsigned()));
+        SENSOR.put(&mut w, u64::from(self.sensor.bits()));
+        GENERATIONS.put(
+            &mut w,
+            to_raw_unsigned(
+                self.generations_per_sec,
+                GENERATIONS_PER_UNIT,
+                GENERATIONS.max_unsigned(),
+                0,
+            ),
+        );
+        FPS_LEFT.put(
+            &mut w,
+            to_raw_unsigned(self.cam_fps_left, FPS_PER_UNIT, FPS_LEFT.max_unsigned(), 0),
+        );
+        FPS_RIGHT.put(
+            &mut w,
+            to_raw_unsigned(
+                self.cam_fps_right,
+                FPS_PER_UNIT,
+                FPS_RIGHT.max_unsigned(),
+                0,
+            ),
+        );
+        seal(w, counter, data_id)
+    }
+
+    fn decode_with(data: &[u8], data_id: u16) -> Result<(Self, AliveCounter), DecodeError> {
+        use layout::*;
+        let (w, counter) = unseal(data, data_id)?;
+        let msg = Self {
+            state: decode_enum(STATE.get(w), "State", State::from_raw)?,
+            faults: FaultBits::from_bits(FAULTS.get(w) as u8),
+            perception_age: Duration::from_millis(AGE_MS.get(w)),
+            sensor: SensorFaults::from_bits(SENSOR.get(w) as u8),
+            motion_fault: MOTION_FAULT.get(w) == 1,
+            generations_per_sec: GENERATIONS.get(w) as f64 / GENERATIONS_PER_UNIT,
+            cam_fps_left: FPS_LEFT.get(w) as f64 / FPS_PER_UNIT,
+            cam_fps_right: FPS_RIGHT.get(w) as f64 / FPS_PER_UNIT,
+        };
+        Ok((msg, counter))
+    }
+}
+default_codec!(StatusMsg);
