@@ -694,6 +694,7 @@ const CORE_LAYERS: &[&[&str]] = &[
         "status",
         "test_support",
         "textfile",
+        "toml_key",
     ],
     &["decision", "frame"],
     &["engine"],

@@ -520,38 +520,10 @@ impl DaemonConfig {
     }
 }
 
-/// The dotted key at byte `offset` of a TOML text: the `[table]` header above it and the key
-/// of its line (for the span toml gives with an error).
+/// The dotted key at byte `offset` of a TOML text (for the span toml gives with an error);
+/// `None` before any key.
 fn key_at(text: &str, offset: usize) -> Option<String> {
-    let offset = offset.min(text.len());
-    let line_start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
-    let line_end = text[offset..].find('\n').map_or(text.len(), |i| offset + i);
-    let line = text[line_start..line_end].trim();
-    let header = |l: &str| {
-        l.strip_prefix('[').map(|l| {
-            l.trim_start_matches('[')
-                .trim_end_matches(']')
-                .trim()
-                .to_string()
-        })
-    };
-    if line.starts_with('[') {
-        return header(line);
-    }
-    let key = line.split('=').next()?.trim().trim_matches('"');
-    if key.is_empty() || key.starts_with('#') {
-        return None;
-    }
-    let table = text[..line_start]
-        .lines()
-        .rev()
-        .map(str::trim)
-        .find(|l| l.starts_with('['))
-        .and_then(header);
-    Some(match table {
-        Some(t) => format!("{t}.{key}"),
-        None => key.to_string(),
-    })
+    Some(flyd_core::toml_key::key_at(text, offset)).filter(|k| !k.is_empty())
 }
 
 mod raw;

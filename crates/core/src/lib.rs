@@ -32,3 +32,4 @@ pub mod status;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 pub mod textfile;
+pub mod toml_key;

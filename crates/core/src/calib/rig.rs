@@ -582,7 +582,7 @@ fn toml_error(file: &Path, text: &str, error: &toml::de::Error) -> CalibError {
     let message = error.message().trim();
     let offset = error.span().map(|span| span.start);
     let mut field = offset
-        .map(|offset| key_path_at(text, offset))
+        .map(|offset| crate::toml_key::key_at(text, offset))
         .unwrap_or_default();
     // For missing (and some unknown) fields the position is the enclosing table; serde names the
     // key in backquotes.
@@ -609,53 +609,4 @@ fn toml_error(file: &Path, text: &str, error: &toml::de::Error) -> CalibError {
         };
     }
     field_error(file, field, message)
-}
-
-/// The dotted key (`table.key`) in force at byte `offset`: the last table header and the last
-/// `key =` line at or before it (continuation lines of a multi-line array keep their key). A
-/// best effort for error messages, good for the flat layout of rig files.
-fn key_path_at(text: &str, offset: usize) -> String {
-    let mut table = "";
-    let mut key: Option<&str> = None;
-    let mut start = 0;
-    for line in text.split_inclusive('\n') {
-        if start > offset {
-            break;
-        }
-        start += line.len();
-        let line = line.trim();
-        if line.starts_with('#') {
-            continue;
-        }
-        if let Some(header) = table_header(line) {
-            table = header;
-            key = None;
-        } else if let Some((k, _)) = line.split_once('=')
-            && is_key(k.trim())
-        {
-            key = Some(k.trim());
-        }
-    }
-    match (table, key) {
-        ("", None) => String::new(),
-        ("", Some(key)) => key.to_string(),
-        (table, None) => table.to_string(),
-        (table, Some(key)) => format!("{table}.{key}"),
-    }
-}
-
-/// The name in a `[table]` or `[[array]]` header line; `None` for other lines, including the
-/// continuation lines of a multi-line array such as `[0.0, 1.0, 0.0],`.
-fn table_header(line: &str) -> Option<&str> {
-    let inner = line.strip_prefix('[')?;
-    let inner = inner.strip_prefix('[').unwrap_or(inner);
-    let (name, rest) = inner.split_once(']')?;
-    let rest = rest.strip_prefix(']').unwrap_or(rest).trim_start();
-    (is_key(name.trim()) && (rest.is_empty() || rest.starts_with('#'))).then_some(name.trim())
-}
-
-fn is_key(s: &str) -> bool {
-    !s.is_empty()
-        && s.chars()
-            .all(|c| c.is_ascii_alphanumeric() || "_-. \"'".contains(c))
 }
