@@ -22,45 +22,74 @@ fn judged_holding(
     motion: Option<VehicleMotion>,
     path_hold_s: f64,
 ) -> (Option<Obstacle>, PredictedPath) {
-    let scenario = hw_mock::Scenario::by_name("pedestrian-4m").expect("scenario");
-    let mut mock = MockStereo::new(scenario, 320, 240).expect("mock");
+    judged_with(
+        motion,
+        ObstacleConfig {
+            follow_path: true,
+            path_hold_s,
+            ..ObstacleConfig::default()
+        },
+    )
+}
+
+/// [`judged`] with the obstacle stage's `config`.
+fn judged_with(
+    motion: Option<VehicleMotion>,
+    config: ObstacleConfig,
+) -> (Option<Obstacle>, PredictedPath) {
+    let (perception, seen) = run("pedestrian-4m", (320, 240), 2000, config, 0..40, 3, |p| {
+        if let Some(m) = motion {
+            p.predict(m, 0.0);
+        }
+    });
+    (seen.last().copied().flatten(), perception.path())
+}
+
+/// `scenario` at `size` with `flies` flies (seed 1, 30 generations of warm-up) over `frames`,
+/// `per_frame` generations each, each frame given to `before` first: the perception as it
+/// ended and every obstacle estimate.
+fn run(
+    scenario: &str,
+    (w, h): (u32, u32),
+    flies: usize,
+    obstacle: ObstacleConfig,
+    frames: std::ops::Range<u32>,
+    per_frame: u32,
+    mut before: impl FnMut(&mut Perception),
+) -> (Perception, Vec<Option<Obstacle>>) {
+    let scenario = hw_mock::Scenario::by_name(scenario).expect("scenario");
+    let mut mock = MockStereo::new(scenario, w, h).expect("mock");
     let mut perception = Perception::new(
         mock.rig(),
         EngineParams {
-            flies: 2000,
+            flies,
             seed: 1,
             ..EngineParams::default()
         },
         PerceptionConfig {
-            obstacle: ObstacleConfig {
-                follow_path: true,
-                path_hold_s,
-                ..ObstacleConfig::default()
-            },
+            obstacle,
             ..PerceptionConfig::default()
         },
     )
     .expect("perception")
     .with_warmup(30);
-    let mut last = None;
-    for i in 0..40u32 {
+    let mut seen = Vec::new();
+    for i in frames {
         let (l, r) = mock.frame(i).expect("render");
         let frame = StereoFrame::new(
-            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, l).expect("left"),
-            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, r).expect("right"),
+            PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, l).expect("left"),
+            PreparedImage::from_pixels(w, h, PixelFormat::Rgb8, r).expect("right"),
             u64::from(i),
         );
-        if let Some(m) = motion {
-            perception.predict(m, 0.0);
-        }
-        for _ in 0..3 {
+        before(&mut perception);
+        for _ in 0..per_frame {
             let report = perception.step(&frame).expect("step");
             if report.estimated {
-                last = Some(report.tracked.obstacle);
+                seen.push(report.tracked.obstacle);
             }
         }
     }
-    (last.flatten(), perception.path())
+    (perception, seen)
 }
 
 /// Speed and yaw rate for a path of curvature `k` (1/m, left positive).
@@ -93,14 +122,26 @@ fn the_corridor_bends_with_the_vehicles_path() {
         (gentle.distance - straight.distance).abs() < 0.3,
         "{gentle:?} against {straight:?}"
     );
-    // The tightest bend (5 m radius), either way: 1.6 m off the path at 4 m, beyond the
-    // corridor's 1.2 m: what the vehicle drives past is no obstacle.
+    // The tightest bend (5 m radius), either way: the pedestrian's axis is 1.4 m off the path
+    // at 4 m, its near side 1.15 m. In a corridor 0.9 m either side, what the vehicle drives
+    // past is no obstacle; in the default 1.2 m one only that near side is in the corridor,
+    // and an obstacle found there is that side, not the pedestrian's middle.
+    let narrow = ObstacleConfig {
+        corridor_half_width: 0.9,
+        path_hold_s: 0.0,
+        ..ObstacleConfig::default()
+    };
     for k in [0.2, -0.2] {
         let (sharp, path) = judged(bend(k));
         assert_eq!(path.curvature, k);
         assert!(
+            sharp.is_none_or(|o| o.lateral.abs() > 1.0),
+            "k = {k}: more than the near side of the pedestrian 1.4 m off the path: {sharp:?}"
+        );
+        let (sharp, _) = judged_with(bend(k), narrow);
+        assert!(
             sharp.is_none(),
-            "k = {k}: the pedestrian 1.6 m off the path is an obstacle: {sharp:?}"
+            "k = {k}: the pedestrian 1.15 m off the path is in a 0.9 m corridor: {sharp:?}"
         );
     }
     // A turn held for no time at all (the motion over 0 s each frame) with the default hold:
@@ -133,39 +174,13 @@ fn nearest_on_the_bend(
         yaw_rate: scenario.yaw_rate_at(40),
     };
     let dt = 1.0 / scenario.fps();
-    let mut mock = MockStereo::new(scenario, 640, 480).expect("mock");
-    let mut perception = Perception::new(
-        mock.rig(),
-        EngineParams {
-            flies: 5000,
-            seed: 1,
-            ..EngineParams::default()
-        },
-        PerceptionConfig {
-            obstacle: config,
-            ..PerceptionConfig::default()
-        },
-    )
-    .expect("perception")
-    .with_warmup(30);
-    let mut nearest: Option<Obstacle> = None;
-    for i in 40..91u32 {
-        let (l, r) = mock.frame(i).expect("render");
-        let frame = StereoFrame::new(
-            PreparedImage::from_pixels(640, 480, PixelFormat::Rgb8, l).expect("left"),
-            PreparedImage::from_pixels(640, 480, PixelFormat::Rgb8, r).expect("right"),
-            u64::from(i),
-        );
-        perception.predict(motion, dt);
-        corridor(&mut perception);
-        for _ in 0..5 {
-            let report = perception.step(&frame).expect("step");
-            if let Some(o) = report.tracked.obstacle.filter(|_| report.estimated) {
-                nearest = Some(nearest.map_or(o, |n| if o.distance < n.distance { o } else { n }));
-            }
-        }
-    }
-    nearest
+    let (_, seen) = run(scenario.name(), (640, 480), 5000, config, 40..91, 5, |p| {
+        p.predict(motion, dt);
+        corridor(p);
+    });
+    seen.into_iter()
+        .flatten()
+        .min_by(|a, b| a.distance.total_cmp(&b.distance))
 }
 
 /// A motion fault (the yaw rate not trusted) on a 60 m bend at 30 km/h: the corridor is the
@@ -199,35 +214,10 @@ fn a_motion_fault_fans_the_corridor_out_over_the_paths_the_vehicle_could_take() 
 fn the_fan_is_never_less_than_the_straight_box() {
     let (straight, _) = judged(None);
     let straight = straight.expect("the pedestrian ahead");
-    let scenario = hw_mock::Scenario::by_name("pedestrian-4m").expect("scenario");
-    let mut mock = MockStereo::new(scenario, 320, 240).expect("mock");
-    let mut perception = Perception::new(
-        mock.rig(),
-        EngineParams {
-            flies: 2000,
-            seed: 1,
-            ..EngineParams::default()
-        },
-        PerceptionConfig::default(),
-    )
-    .expect("perception")
-    .with_warmup(30);
-    let mut last = None;
-    for i in 0..40u32 {
-        let (l, r) = mock.frame(i).expect("render");
-        let frame = StereoFrame::new(
-            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, l).expect("left"),
-            PreparedImage::from_pixels(320, 240, PixelFormat::Rgb8, r).expect("right"),
-            u64::from(i),
-        );
-        perception.motion_unknown(30.0 / 3.6);
-        for _ in 0..3 {
-            let report = perception.step(&frame).expect("step");
-            if report.estimated {
-                last = Some(report.tracked.obstacle);
-            }
-        }
-    }
+    let fault = |p: &mut Perception| p.motion_unknown(30.0 / 3.6);
+    let config = ObstacleConfig::default();
+    let (perception, seen) = run("pedestrian-4m", (320, 240), 2000, config, 0..40, 3, fault);
+    let last = seen.last().copied();
     assert!(perception.fan().is_some_and(|k| (k - 0.018).abs() < 1e-3));
     let fan = last.flatten().expect("the pedestrian ahead is in the fan");
     assert!(

@@ -168,9 +168,9 @@ impl Immigration {
             // Near the vehicle much of the corridor is outside the image: drawn again.
             let scanned = if scan {
                 (0..SAMPLE_ATTEMPTS).find_map(|_| {
-                    let p = ctx.sampler.corridor_point(rng)?;
+                    let (p, along) = ctx.sampler.corridor_point(rng)?;
                     let (u, v) = ctx.left.project(p[0], p[1], p[2])?;
-                    Self::block_of(ctx, u, v)
+                    Some((Self::block_of(ctx, u, v)?, along))
                 })
             } else {
                 None
@@ -182,7 +182,7 @@ impl Immigration {
                 // A focused immigrant goes around something seen in the corridor: its block
                 // or a neighbour, its depth give or take FOCUS_DEPTH.
                 let mut around = None;
-                let b = if let Some(b) = scanned {
+                let b = if let Some((b, _)) = scanned {
                     b
                 } else if focus {
                     let u = unit_f32(rng.next_u32());
@@ -201,8 +201,8 @@ impl Immigration {
                 };
                 let ray = Self::strongest_in_block(ctx, rng, b);
                 let range = |xn: f32, yn: f32| {
-                    if let (Some(_), Some(c)) = (scanned, &ctx.sampler.corridor) {
-                        return ctx.sampler.ray_range_in_corridor(xn, yn, c);
+                    if let (Some((_, along)), Some(c)) = (scanned, &ctx.sampler.corridor) {
+                        return ctx.sampler.ray_range_in_corridor(xn, yn, c, along);
                     }
                     let (lo, hi) = ctx.sampler.ray_range(xn, yn)?;
                     Some(match around {

@@ -32,18 +32,36 @@ pub(super) struct Sampler {
     pub(super) corridor: Option<Corridor>,
 }
 
-/// The box ahead of the vehicle where an obstacle counts (vehicle frame, metres; heights above
-/// the road): the corridor immigrants probe depths only where their ray crosses it
+/// The band along the vehicle's path where an obstacle counts (vehicle frame, metres; heights
+/// above the road): the corridor immigrants probe depths only where their ray crosses it
 /// ([`super::EngineParams::corridor_immigrants`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Corridor {
-    /// Half-width either side of the vehicle's centre line.
+    /// Half-width either side of the path.
     pub half_width: f32,
     /// Lowest and highest point above the road.
     pub min_height: f32,
     pub max_height: f32,
     /// How far ahead.
     pub max_distance: f32,
+    /// The path's curvature, 1/m, positive turning left ([`crate::path::PredictedPath`]);
+    /// 0: the straight box ahead.
+    pub curvature: f32,
+}
+
+impl Corridor {
+    /// The vehicle-frame `(x, z)` of the point `along` metres along the path and `offset`
+    /// metres right of it.
+    #[inline]
+    fn at(&self, along: f32, offset: f32) -> (f32, f32) {
+        let k = self.curvature;
+        if k == 0.0 {
+            return (offset, along);
+        }
+        // The arc's point (left bends towards -x) plus the offset along its right normal.
+        let (sin, cos) = (k * along).sin_cos();
+        (-(1.0 - cos) / k + offset * cos, sin / k + offset * sin)
+    }
 }
 
 /// Attempts to draw a fly visible in both images before giving up on that slot.
@@ -134,26 +152,36 @@ impl Sampler {
     }
 
     /// The inverse-depth range of the ray through `(xn, yn)` inside the search range and
-    /// `corridor` (its width, its heights above the road, its length); `None` when the ray
-    /// misses it.
+    /// `corridor` (its width, its heights above the road, its length) near `drawn_along`
+    /// metres along its path (where the ray's point was drawn); `None` when the ray misses it.
     pub(super) fn ray_range_in_corridor(
         &self,
         xn: f32,
         yn: f32,
         corridor: &Corridor,
+        drawn_along: f32,
     ) -> Option<(f32, f32)> {
         let heights = Some((corridor.min_height, corridor.max_height));
         let (lo, hi) = self.ray_range_in(xn, yn, self.inv_depth, heights, self.road)?;
         let (mut near, mut far) = (1.0 / hi, 1.0 / lo);
         let along = |row: usize| self.m[row] * xn + self.m[row + 1] * yn + self.m[row + 2];
-        // Across: x(d) = c_x + d k_x within the half-width.
-        let (kx, hw) = (along(0), corridor.half_width);
-        if kx.abs() < 1e-6 {
-            if self.c[0].abs() > hw {
+        // Across: the offset from the path, A + d B along the ray, within the half-width. On
+        // a curved path, from the path's tangent where the point was drawn (`along`): the
+        // probes lie around that point's depth.
+        let (mut a0, mut b0) = (self.c[0], along(0));
+        if corridor.curvature != 0.0 {
+            let (px, pz) = corridor.at(drawn_along, 0.0);
+            let (sin, cos) = (corridor.curvature * drawn_along).sin_cos();
+            a0 = cos * (self.c[0] - px) + sin * (self.c[2] - pz);
+            b0 = cos * along(0) + sin * along(6);
+        }
+        let hw = corridor.half_width;
+        if b0.abs() < 1e-6 {
+            if a0.abs() > hw {
                 return None;
             }
         } else {
-            let (a, b) = ((-hw - self.c[0]) / kx, (hw - self.c[0]) / kx);
+            let (a, b) = ((-hw - a0) / b0, (hw - a0) / b0);
             near = near.max(a.min(b));
             far = far.min(a.max(b));
         }
@@ -167,20 +195,22 @@ impl Sampler {
         (near < far).then(|| (1.0 / far, 1.0 / near))
     }
 
-    /// A vehicle-frame point uniform in the corridor (across, in height above the road, and
-    /// ahead from the search range's nearest depth); `None` without a corridor.
+    /// A vehicle-frame point uniform in the corridor (across the path, in height above the
+    /// road, and along it from the search range's nearest depth), with its distance along the
+    /// path; `None` without a corridor.
     #[inline]
-    pub(super) fn corridor_point<R: Rng>(&self, rng: &mut R) -> Option<[f32; 3]> {
+    pub(super) fn corridor_point<R: Rng>(&self, rng: &mut R) -> Option<([f32; 3], f32)> {
         let c = self.corridor?;
         let r = rng.next_u64();
-        let x = lerp((-c.half_width, c.half_width), unit_f32(r as u32));
-        let z = lerp(
+        let offset = lerp((-c.half_width, c.half_width), unit_f32(r as u32));
+        let along = lerp(
             (1.0 / self.inv_depth.1, c.max_distance),
             unit_f32((r >> 32) as u32),
         );
+        let (x, z) = c.at(along, offset);
         let h = lerp((c.min_height, c.max_height), unit_f32(rng.next_u32()));
         let [r0, rz, rx] = self.road;
-        Some([x, r0 + rz * z + rx * x + h, z])
+        Some(([x, r0 + rz * z + rx * x + h, z], along))
     }
 
     /// Depth of vehicle-frame point `p` along the left camera's optical axis.

@@ -1064,6 +1064,7 @@ fn corridor_immigrants_probe_the_corridor() {
         min_height: 0.4,
         max_height: 1.6,
         max_distance: 10.0,
+        curvature: 0.0,
     };
     let run = |n: u32, scan: Option<Corridor>| {
         let mut e = Engine::new(
@@ -1130,4 +1131,61 @@ fn corridor_immigrants_probe_the_corridor() {
     // depth drawn uniformly where the ray crosses the corridor (10-35 px of disparity here)
     // would be within 1 px on 1 in 5 or fewer.
     assert!(2 * found >= reach, "{found} of {reach} on the wall");
+}
+
+/// A corridor along a bend: its points lie within its half-width of the path (along it from
+/// the nearest depth searched to its length), and a ray through one of them is probed over a
+/// range that holds that point.
+#[test]
+fn a_curved_corridor_is_scanned_along_its_path() {
+    let rig = rig();
+    let mut e = Engine::new(&rig, params(200, 5)).expect("engine");
+    let corridor = Corridor {
+        half_width: 0.6,
+        min_height: 0.4,
+        max_height: 1.6,
+        max_distance: 10.0,
+        curvature: 0.08,
+    };
+    e.set_corridor(Some(corridor));
+    let path = crate::path::PredictedPath { curvature: 0.08 };
+    let sampler = &e.setup.sampler;
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+    let (mut left_of_straight, mut probed) = (0, 0);
+    for _ in 0..500 {
+        let (p, along) = sampler.corridor_point(&mut rng).expect("a corridor");
+        let (a, off) = path.locate(p[0], p[2]);
+        assert!(off.abs() <= 0.6 + 1e-3, "{p:?}: {off} off the path");
+        assert!(
+            (a - along).abs() < 1e-3 && along <= 10.0,
+            "{a} against {along}"
+        );
+        left_of_straight += usize::from(p[0] < -0.6);
+        // The left camera's ray through it, and the depths probed on it.
+        let c = rig.left.camera_from_vehicle(&nalgebra::Point3::new(
+            f64::from(p[0]),
+            f64::from(p[1]),
+            f64::from(p[2]),
+        ));
+        if c.z <= 0.1 {
+            continue;
+        }
+        let (xn, yn) = ((c.x / c.z) as f32, (c.y / c.z) as f32);
+        let Some((lo, hi)) = sampler.ray_range_in_corridor(xn, yn, &corridor, along) else {
+            continue;
+        };
+        let cam = c.z as f32;
+        probed += 1;
+        let inv = 1.0 / cam;
+        assert!(
+            inv >= lo * 0.999 && inv <= hi * 1.001,
+            "{p:?} at depth {cam}: probed over inverse depths {lo}-{hi}"
+        );
+    }
+    // A bend of 12.5 m radius takes the corridor left of the straight box.
+    assert!(
+        left_of_straight > 100,
+        "{left_of_straight} of 500 left of straight ahead"
+    );
+    assert!(probed > 100, "{probed} rays probed");
 }

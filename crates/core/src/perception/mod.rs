@@ -164,6 +164,9 @@ pub struct Perception {
     search_far: f64,
     /// The rig's f B, pixel metres.
     fb: f64,
+    /// The corridor the corridor immigrants scan (none without a road); it bends with the
+    /// held path.
+    corridor: Option<Corridor>,
 }
 
 impl Perception {
@@ -180,15 +183,17 @@ impl Perception {
         let mut engine = Engine::new(rig, params).map_err(PerceptionError::Engine)?;
         // Some immigrants scan the corridor the obstacle stage looks in; a scene without a
         // road (a dataset) has none.
-        if let Some(scan) = scan {
+        let corridor = scan.map(|scan| {
             let o = &config.obstacle;
-            engine.set_corridor(Some(Corridor {
+            Corridor {
                 half_width: o.corridor_half_width as f32,
                 min_height: o.min_height as f32,
                 max_height: o.max_height as f32,
                 max_distance: o.max_distance.min(scan) as f32,
-            }));
-        }
+                curvature: 0.0,
+            }
+        });
+        engine.set_corridor(corridor);
         let prior = RoadPlane::FLAT;
         let fb = rig.right.intrinsics().fx * rig.baseline();
         let far = search_far(engine.params(), &config.obstacle);
@@ -224,6 +229,7 @@ impl Perception {
             pending_fan: None,
             search_far: far,
             fb,
+            corridor,
             config,
             warmup: 0,
             predicted_path: None,
@@ -391,6 +397,15 @@ impl Perception {
             }
             let path = self.followed.unwrap_or(PathEstimate::STRAIGHT);
             self.finder.set_paths(path.held, path.now);
+            // The corridor immigrants scan along the held path (the straight box on a fan,
+            // which the fan holds).
+            if let Some(c) = self.corridor.as_mut() {
+                let k = path.held.curvature as f32;
+                if c.curvature != k {
+                    c.curvature = k;
+                    self.engine.set_corridor(Some(*c));
+                }
+            }
             if let Some(k) = self.pending_fan.take() {
                 self.finder.set_fan(k);
             }
