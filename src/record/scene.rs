@@ -214,9 +214,8 @@ pub(super) fn scene(
         let height = (top - bottom).max(0.1);
         // Its near face `distance` along the path, `lateral` right of it, turned with it.
         let along = distance + 0.25;
-        let (px, pz) = path.point(along);
         let heading = path.curvature * along;
-        let (x, z) = (px + lateral * heading.cos(), pz + lateral * heading.sin());
+        let (x, z) = path.point_at(along, lateral);
         entities.push(SceneEntity {
             timestamp: ts,
             frame_id: "base_link".into(),

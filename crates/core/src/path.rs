@@ -54,6 +54,14 @@ impl PredictedPath {
         (-(1.0 - cos) / k, sin / k)
     }
 
+    /// The point `along` metres along the path and `offset` metres right of it (x, z): the
+    /// path's point moved along its right normal there.
+    pub fn point_at(&self, along: f64, offset: f64) -> (f64, f64) {
+        let (px, pz) = self.point(along);
+        let heading = self.curvature * along;
+        (px + offset * heading.cos(), pz + offset * heading.sin())
+    }
+
     /// A vehicle-frame point `(x, z)` in the path's coordinates: `(along, offset)`, its
     /// distance along the path to where it is abreast (metres; the arc's length to the foot
     /// of the point's radius) and its signed offset from the path (metres, positive right).
@@ -253,6 +261,22 @@ mod tests {
             );
         }
         assert_eq!(p.point(7.0), (0.0, 7.0));
+        assert_eq!(p.point_at(7.0, -1.5), (-1.5, 7.0));
+    }
+
+    #[test]
+    fn a_point_beside_the_path_is_located_where_it_was_put() {
+        for k in [0.05, -0.02, 0.2] {
+            let path = PredictedPath { curvature: k };
+            for (along, offset) in [(3.0, 0.0), (10.0, 1.2), (6.0, -0.8)] {
+                let (x, z) = path.point_at(along, offset);
+                let (a, o) = path.locate(x as f32, z as f32);
+                assert!(
+                    (f64::from(a) - along).abs() < 1e-3 && (f64::from(o) - offset).abs() < 1e-3,
+                    "k {k}: ({along}, {offset}) located at ({a}, {o})"
+                );
+            }
+        }
     }
 
     #[test]

@@ -51,7 +51,7 @@ pub struct Corridor {
 
 impl Corridor {
     /// The vehicle-frame `(x, z)` of the point `along` metres along the path and `offset`
-    /// metres right of it.
+    /// metres right of it: [`crate::path::PredictedPath::point_at`] in the engine's f32.
     #[inline]
     fn at(&self, along: f32, offset: f32) -> (f32, f32) {
         let k = self.curvature;
