@@ -11,6 +11,7 @@ pub mod daemon;
 pub mod eval;
 pub mod logging;
 pub mod mock;
+pub mod path_bench;
 pub mod record;
 pub mod replay;
 pub mod source;

@@ -79,6 +79,20 @@ struct BenchArgs {
     /// the first frame showing the pedestrian to the first STOP frame, over RUNS runs.
     #[arg(long, value_name = "RUNS", num_args = 0..=1, default_missing_value = "10")]
     end_to_end: Option<usize>,
+    /// Instead: flyd's path prediction on real trajectories (KITTI odometry poses: files
+    /// poses_NN.txt / poses.txt with their times_NN.txt / times.txt, or folders of them;
+    /// default ../shared/data/kitti_poses): at each decision stage's distance, how often an
+    /// object on the real path is inside the corridor and one beside it is (docs/path.md).
+    /// Takes [decision] and [perception.obstacle] from --config.
+    #[arg(long, value_name = "POSES", num_args = 0.., conflicts_with = "end_to_end")]
+    path: Option<Vec<PathBuf>>,
+    /// With --path: the path model instead of the configuration's: arc (the arc of the
+    /// moment), clothoid or held.
+    #[arg(long, requires = "path", value_parser = ["arc", "clothoid", "held"])]
+    path_model: Option<String>,
+    /// With --path: white noise added to each moment's yaw rate, rad/s (standard deviation).
+    #[arg(long, requires = "path", default_value_t = 0.0)]
+    yaw_noise: f64,
 }
 
 #[derive(Args)]
@@ -406,6 +420,9 @@ fn bench_command(args: BenchArgs) -> Result<()> {
     if let Some(runs) = args.end_to_end {
         return bench_end_to_end_command(runs, args.json);
     }
+    if let Some(paths) = &args.path {
+        return bench_path_command(&args, paths);
+    }
     let config = args.config.as_deref().map(config::check).transpose()?;
     let report = flyd::bench::generations(&flyd::bench::GenerationBench {
         flies: args.flies,
@@ -425,6 +442,61 @@ fn bench_command(args: BenchArgs) -> Result<()> {
         scenario: args.scenario.clone(),
         predict: !args.no_predict,
     })?;
+    if args.json {
+        say!("{}", serde_json::to_string_pretty(&report)?)?;
+    } else {
+        say!("{report}")?;
+    }
+    Ok(())
+}
+
+/// `flyd bench --path [POSES...]`: the path prediction on real trajectories.
+fn bench_path_command(args: &BenchArgs, paths: &[PathBuf]) -> Result<()> {
+    use flyd::path_bench::{Drive, PathBenchConfig};
+    use flyd_core::path::PathModel;
+    let config = args.config.as_deref().map(config::check).transpose()?;
+    let decision = config.as_ref().map(|c| c.decision).unwrap_or_default();
+    let obstacle = config
+        .as_ref()
+        .map(|c| c.perception.obstacle)
+        .unwrap_or_default();
+    let model = match args.path_model.as_deref() {
+        Some("arc") => PathModel::Clothoid { window: 0.0 },
+        Some("clothoid") => PathModel::Clothoid {
+            window: obstacle.path_rate_window_s,
+        },
+        Some("held") => PathModel::Held {
+            hold: obstacle.path_hold_s,
+        },
+        _ => obstacle.path(),
+    };
+    let default = [PathBuf::from("../shared/data/kitti_poses")];
+    let paths = if paths.is_empty() {
+        &default[..]
+    } else {
+        paths
+    };
+    let mut drives = Vec::new();
+    for p in paths {
+        drives.extend(
+            Drive::load(p).with_context(|| format!("reading the drives at {}", p.display()))?,
+        );
+    }
+    if !(args.yaw_noise.is_finite() && args.yaw_noise >= 0.0) {
+        bail!(
+            "--yaw-noise must be a standard deviation in rad/s, got {}",
+            args.yaw_noise
+        );
+    }
+    let report = flyd::path_bench::run(
+        &drives,
+        &PathBenchConfig {
+            decision,
+            half_width: obstacle.corridor_half_width,
+            model,
+            yaw_noise: args.yaw_noise,
+        },
+    );
     if args.json {
         say!("{}", serde_json::to_string_pretty(&report)?)?;
     } else {

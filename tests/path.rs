@@ -225,3 +225,147 @@ fn the_fan_is_never_less_than_the_straight_box() {
         "{fan:?} against {straight:?}"
     );
 }
+
+/// `flyd bench --path`'s measure: flyd's path prediction against where a real car went.
+mod bench {
+    use std::path::{Path, PathBuf};
+
+    use flyd::path_bench::{Drive, PathBenchConfig, PathReport, Row, Stage};
+    use flyd_core::decision::DecisionConfig;
+    use flyd_core::path::PathModel;
+
+    fn fixture() -> Vec<Drive> {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/kitti_poses");
+        Drive::load(&dir).expect("the fixture's drive")
+    }
+
+    fn row<'a>(report: &'a PathReport, stage: Stage, band: &str) -> &'a Row {
+        report
+            .rows
+            .iter()
+            .find(|r| r.stage == stage && r.band == band)
+            .expect("a row for every stage and band")
+    }
+
+    fn bench(
+        drives: &[Drive],
+        model: PathModel,
+        decision: DecisionConfig,
+        half: f64,
+    ) -> PathReport {
+        flyd::path_bench::run(
+            drives,
+            &PathBenchConfig {
+                decision,
+                half_width: half,
+                model,
+                yaw_noise: 0.0,
+            },
+        )
+    }
+
+    /// The decisions the issue's table was measured with: SLOW 1.5, STOP 4 m/s^2.
+    fn before() -> DecisionConfig {
+        DecisionConfig {
+            slow_decel: 1.5,
+            stop_decel: 4.0,
+            ..DecisionConfig::default()
+        }
+    }
+
+    const ARC: PathModel = PathModel::Clothoid { window: 0.0 };
+
+    #[test]
+    fn on_a_real_drive_the_arc_of_the_moment_is_right_near_and_wrong_far() {
+        // KITTI odometry 03 (83 s, residential, 18-34 km/h).
+        let r = bench(&fixture(), ARC, before(), 1.2);
+        assert_eq!(r.drives, 1);
+        assert!((r.seconds - 83.0).abs() < 1.0, "{}", r.seconds);
+        let ttc = row(&r, Stage::Ttc1s, "all");
+        let stop = row(&r, Stage::Stop, "all");
+        let slow = row(&r, Stage::Slow, "all");
+        assert!(ttc.moments > 500, "{ttc:?}");
+        // About one second ahead the arc holds; at the SLOW distance it does not.
+        assert!(ttc.on_path_inside_pct > 99.0, "{ttc:?}");
+        assert!(
+            stop.on_path_inside_pct <= ttc.on_path_inside_pct,
+            "{stop:?}"
+        );
+        assert!(slow.on_path_inside_pct < 80.0, "{slow:?}");
+        assert!(
+            slow.offset_p95_m > 2.0 * stop.offset_p95_m,
+            "{slow:?} {stop:?}"
+        );
+        // Every band is reported, empty ones as such (03 never reaches 40 km/h).
+        let fast = row(&r, Stage::Stop, "50+");
+        assert_eq!(fast.moments, 0);
+        assert!(fast.on_path_inside_pct.is_nan());
+    }
+
+    /// Staged decisions: SLOW (partial braking) at 6 m/s^2, STOP (full braking) at 9 m/s^2.
+    fn staged() -> DecisionConfig {
+        DecisionConfig {
+            slow_decel: 6.0,
+            stop_decel: 9.0,
+            ..DecisionConfig::default()
+        }
+    }
+
+    #[test]
+    fn at_the_staged_distances_the_clothoid_corridor_holds_on_a_real_drive() {
+        let r = bench(
+            &fixture(),
+            PathModel::Clothoid { window: 0.3 },
+            staged(),
+            1.1,
+        );
+        for stage in [Stage::Stop, Stage::Slow] {
+            let row = row(&r, stage, "all");
+            assert!(row.moments > 500, "{row:?}");
+            assert!(row.on_path_inside_pct >= 99.0, "{row:?}");
+            assert!(row.beside_inside_pct[1] <= 1.0, "{row:?}");
+            assert!(row.offset_p99_m < 1.0, "{row:?}");
+        }
+    }
+
+    fn shared() -> Option<PathBuf> {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/kitti_poses");
+        if dir.is_dir() {
+            Some(dir)
+        } else {
+            eprintln!(
+                "SKIP: {} is not there: the issue's table over 38 minutes of KITTI \
+                 trajectories is not reproduced (the fixture's tests above still run)",
+                dir.display()
+            );
+            None
+        }
+    }
+
+    /// The table the path issue measured (arc of the moment, +-1.2 m, SLOW 1.5 and STOP 4
+    /// m/s^2, moments above 18 km/h): the bench measures what it says within a few points
+    /// (the issue's yaw rate of a moment was taken from the poses slightly differently).
+    #[test]
+    fn the_bench_reproduces_the_issues_table_on_all_of_kitti_poses() {
+        let Some(dir) = shared() else { return };
+        let drives = Drive::load(&dir).expect("kitti_poses");
+        let r = bench(&drives, ARC, before(), 1.2);
+        assert_eq!(r.drives, 10);
+        let check = |stage, median: f64, outside: f64, beside: f64| {
+            let row = row(&r, stage, "all");
+            assert!((18_800..19_200).contains(&row.moments), "{row:?}");
+            assert!((row.median_distance_m - median).abs() < 0.3, "{row:?}");
+            assert!(
+                (100.0 - row.on_path_inside_pct - outside).abs() < 3.0,
+                "{row:?}: {outside} % outside"
+            );
+            assert!(
+                (row.beside_inside_pct[1] - beside).abs() < 2.0,
+                "{row:?}: {beside} % inside"
+            );
+        };
+        check(Stage::Stop, 17.5, 14.5, 17.4);
+        check(Stage::Slow, 35.5, 61.0, 33.0);
+        check(Stage::Ttc1s, 9.3, 0.4, 0.8);
+    }
+}

@@ -713,7 +713,7 @@ const RUNTIME_LAYERS: &[&[&str]] = &[
     &["mock"],
     &["config", "record"],
     &["daemon", "logging"],
-    &["bench", "replay"],
+    &["bench", "path_bench", "replay"],
     &["eval"],
 ];
 

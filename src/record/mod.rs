@@ -517,6 +517,7 @@ impl Recorder {
             generation_us: o.generation_time.as_secs_f64() * 1e6,
             path_curvature: o.path.map(|p| p.held.curvature),
             path_curvature_now: o.path.map(|p| p.now.curvature),
+            path_curvature_rate: o.path.map(|p| p.held.rate).filter(|r| *r != 0.0),
             search_far_m: Some(o.search_far),
         };
         let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);

@@ -169,6 +169,7 @@ pub(super) fn scene(
     }];
     let path = flyd_core::path::PredictedPath {
         curvature: event.path_curvature.unwrap_or(0.0),
+        rate: event.path_curvature_rate.unwrap_or(0.0),
     };
     // The road's height under a vehicle-frame point.
     let road_y =
@@ -214,7 +215,7 @@ pub(super) fn scene(
         let height = (top - bottom).max(0.1);
         // Its near face `distance` along the path, `lateral` right of it, turned with it.
         let along = distance + 0.25;
-        let heading = path.curvature * along;
+        let heading = path.effective_curvature(along) * along;
         let (x, z) = path.point_at(along, lateral);
         entities.push(SceneEntity {
             timestamp: ts,
@@ -316,6 +317,7 @@ mod tests {
             generation_us: 100.0,
             path_curvature,
             path_curvature_now: path_curvature,
+            path_curvature_rate: None,
             search_far_m: Some(40.0),
         }
     }

@@ -230,6 +230,10 @@ pub struct PerceptionEvent {
     /// ... and of the arc of the moment, which an obstacle must also be on.
     #[serde(default)]
     pub path_curvature_now: Option<f64>,
+    /// How the corridor's curvature changes per metre along it, 1/m^2 (a clothoid,
+    /// `flyd_core::path::PredictedPath`); None: an arc (and in recordings made before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path_curvature_rate: Option<f64>,
     /// How far ahead the flies and the obstacle stage searched on this frame, metres: the
     /// configured ranges, or farther at a speed whose SLOW distance lies beyond them
     /// (`flyd_core::perception::range`). None in recordings made before it.

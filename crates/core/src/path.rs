@@ -15,15 +15,98 @@ pub const MAX_CURVATURE: f64 = 0.2;
 /// speed says nothing of where the vehicle goes over its (short) stopping distance.
 pub const MIN_SPEED: f64 = 1.0;
 
-/// An arc of constant curvature from the vehicle frame's origin, tangent to +z.
+/// The fastest a predicted path's curvature changes, 1/m per metre: from straight to
+/// [`MAX_CURVATURE`] over 10 m.
+pub const MAX_RATE: f64 = 0.02;
+
+/// A path from the vehicle frame's origin, tangent to +z: an arc of constant curvature, or
+/// (a `rate`) a clothoid whose curvature changes linearly with the distance travelled, as a
+/// road's entries and exits are built and as a driver steers into and out of a bend.
+///
+/// The extrapolated curvature `curvature + rate s` never changes sign (a bend being left
+/// ends straight: an S-bend's other half is not guessed), never exceeds [`MAX_CURVATURE`],
+/// and changes only over the first [`CLOTHOID_REACH`] metres (a steering input is not
+/// extrapolated for ever).
+///
+/// Where a clothoid's point is, off it and along it, is taken from the arc of the same
+/// lateral displacement at that distance ([`PredictedPath::effective_curvature`]): exact
+/// for an arc, within centimetres of the clothoid over the distances flyd decides at.
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct PredictedPath {
-    /// 1/m, positive turning left; 0: straight ahead.
+    /// 1/m at the vehicle, positive turning left; 0 (and no rate): straight ahead.
     pub curvature: f64,
+    /// 1/m^2: how the curvature changes per metre travelled (0: an arc).
+    pub rate: f64,
 }
 
+/// Over how many metres a clothoid's curvature keeps changing ([`PredictedPath`]).
+pub const CLOTHOID_REACH: f64 = 30.0;
+
 impl PredictedPath {
-    pub const STRAIGHT: Self = Self { curvature: 0.0 };
+    pub const STRAIGHT: Self = Self {
+        curvature: 0.0,
+        rate: 0.0,
+    };
+
+    /// The arc of curvature `curvature` (1/m).
+    pub const fn arc(curvature: f64) -> Self {
+        Self {
+            curvature,
+            rate: 0.0,
+        }
+    }
+
+    /// Where the curvature stops changing, metres along: at [`CLOTHOID_REACH`], where it
+    /// reaches 0 (a bend's exit) or [`MAX_CURVATURE`].
+    fn rate_ends(&self) -> f64 {
+        let (k, r) = (self.curvature, self.rate);
+        if r == 0.0 {
+            return 0.0;
+        }
+        let mut end = CLOTHOID_REACH;
+        // Towards 0 (r and k of opposite signs), or away towards the bound.
+        let limit = if k * r < 0.0 {
+            0.0
+        } else {
+            MAX_CURVATURE.copysign(r)
+        };
+        let to_limit = (limit - k) / r;
+        if to_limit.is_finite() && to_limit >= 0.0 {
+            end = end.min(to_limit);
+        }
+        end
+    }
+
+    /// The curvature `along` metres ahead (1/m).
+    pub fn curvature_at(&self, along: f64) -> f64 {
+        let s = along.max(0.0).min(self.rate_ends());
+        self.curvature + self.rate * s
+    }
+
+    /// The curvature of the arc that is as far sideways `along` metres ahead as the path:
+    /// `2 / s^2` times the lateral displacement `int_0^s (s - u) k(u) du` (small angles),
+    /// `curvature + rate s / 3` while the curvature changes. An arc's own curvature.
+    pub fn effective_curvature(&self, along: f64) -> f64 {
+        let (k0, r) = (self.curvature, self.rate);
+        if r == 0.0 {
+            return k0;
+        }
+        let s = along.max(0.0);
+        let u1 = self.rate_ends();
+        if s <= u1 {
+            return k0 + r * s / 3.0;
+        }
+        let k1 = k0 + r * u1;
+        let lateral = s * (k0 * u1 + r * u1 * u1 / 2.0)
+            - (k0 * u1 * u1 / 2.0 + r * u1 * u1 * u1 / 3.0)
+            + k1 * (s - u1) * (s - u1) / 2.0;
+        2.0 * lateral / (s * s)
+    }
+
+    /// The arc that stands for the path `along` metres ahead ([`PredictedPath::effective_curvature`]).
+    fn arc_at(&self, along: f64) -> Self {
+        Self::arc(self.effective_curvature(along))
+    }
 
     /// The path `motion` describes: curvature = yaw rate / speed, within
     /// `-MAX_CURVATURE..=MAX_CURVATURE`; straight below [`MIN_SPEED`] or for a non-finite
@@ -33,18 +116,33 @@ impl PredictedPath {
         if motion.speed.abs() < MIN_SPEED || !k.is_finite() {
             return Self::STRAIGHT;
         }
+        Self::arc(k.clamp(-MAX_CURVATURE, MAX_CURVATURE))
+    }
+
+    /// The clothoid of `motion` whose curvature changes by `rate` 1/m per metre (see
+    /// [`PredictedPath`]): straight as [`PredictedPath::of_motion`] is.
+    pub fn clothoid(motion: VehicleMotion, rate: f64) -> Self {
+        let arc = Self::of_motion(motion);
+        let known = motion.speed.abs() >= MIN_SPEED && (motion.yaw_rate / motion.speed).is_finite();
+        if !known || !rate.is_finite() {
+            return arc;
+        }
         Self {
-            curvature: k.clamp(-MAX_CURVATURE, MAX_CURVATURE),
+            rate: rate.clamp(-MAX_RATE, MAX_RATE),
+            ..arc
         }
     }
 
     /// Whether the path is straight ahead (then [`PredictedPath::locate`] is `(z, x)` exactly).
     pub fn is_straight(&self) -> bool {
-        self.curvature == 0.0
+        self.curvature == 0.0 && self.rate == 0.0
     }
 
     /// The path's point `along` metres from the vehicle (x, z).
     pub fn point(&self, along: f64) -> (f64, f64) {
+        if self.rate != 0.0 {
+            return self.arc_at(along).point(along);
+        }
         let k = self.curvature;
         if k == 0.0 {
             return (0.0, along);
@@ -57,6 +155,9 @@ impl PredictedPath {
     /// The point `along` metres along the path and `offset` metres right of it (x, z): the
     /// path's point moved along its right normal there.
     pub fn point_at(&self, along: f64, offset: f64) -> (f64, f64) {
+        if self.rate != 0.0 {
+            return self.arc_at(along).point_at(along, offset);
+        }
         let (px, pz) = self.point(along);
         let heading = self.curvature * along;
         (px + offset * heading.cos(), pz + offset * heading.sin())
@@ -71,6 +172,12 @@ impl PredictedPath {
     /// `offset = (2x + k (x^2 + z^2)) / (1 + hypot(1 + k x, k z))` (the distance to the
     /// circle's centre minus its radius, rationalised) and `along = atan2(|k| z, 1 + k x) / |k|`.
     pub fn locate(&self, x: f32, z: f32) -> (f32, f32) {
+        if self.rate != 0.0 {
+            // The arc of the path's displacement where the point is abreast: found from the
+            // depth, then once more from the distance along.
+            let first = self.arc_at(f64::from(z)).locate(x, z).0;
+            return self.arc_at(f64::from(first)).locate(x, z);
+        }
         let k = self.curvature;
         if k == 0.0 {
             return (z, x);
@@ -92,24 +199,23 @@ pub fn nearest_in_fan(max_curvature: f64, x: f32, z: f32) -> PredictedPath {
     let r2 = x * x + z * z;
     let k = if r2 > 0.0 { -2.0 * x / r2 } else { 0.0 };
     let max = max_curvature.abs().min(MAX_CURVATURE);
-    PredictedPath {
-        curvature: if k.is_finite() {
-            k.clamp(-max, max)
-        } else {
-            0.0
-        },
-    }
+    PredictedPath::arc(if k.is_finite() {
+        k.clamp(-max, max)
+    } else {
+        0.0
+    })
 }
 
 /// The paths the obstacle stage's corridor follows ([`PathEstimator::update`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct PathEstimate {
-    /// The curvature the vehicle has held: the corridor's centre line, distances along it.
+    /// The corridor's centre line, distances along it: the clothoid of the vehicle's motion
+    /// ([`PathModel::Clothoid`]), or the curvature it has held ([`PathModel::Held`]).
     pub held: PredictedPath,
-    /// The curvature of the moment ([`PredictedPath::of_motion`]): a fly off this arc's
-    /// corridor is no obstacle either. While a turn has not been held (a lane change, a bend
-    /// being entered, a correction), what is ahead on one path only is left out: straight on,
-    /// the outside of the bend; on the arc, the roadside the brief yaw rate points at.
+    /// A fly must be in this path's corridor too (the same path: no second test). With
+    /// [`PathModel::Held`], the curvature of the moment ([`PredictedPath::of_motion`]):
+    /// while a turn has not been held (a lane change, a bend being entered, a correction),
+    /// what is ahead on one path only is left out.
     pub now: PredictedPath,
 }
 
@@ -118,29 +224,70 @@ impl PathEstimate {
         held: PredictedPath::STRAIGHT,
         now: PredictedPath::STRAIGHT,
     };
+
+    /// Where the vehicle-frame point `(x, z)` is in the corridor `half_width` metres either
+    /// side of the paths: `(along, offset)` on [`PathEstimate::held`] when it is within
+    /// `half_width` of both paths, else `None`. What the obstacle stage and `flyd bench
+    /// --path` call a point in the corridor.
+    pub fn locate_in(&self, x: f32, z: f32, half_width: f32) -> Option<(f32, f32)> {
+        let (along, off) = if !self.held.is_straight() && z > 0.0 {
+            self.held.locate(x, z)
+        } else {
+            (z, x)
+        };
+        let gate = || {
+            self.now == self.held
+                || (if !self.now.is_straight() && z > 0.0 {
+                    self.now.locate(x, z).1
+                } else {
+                    x
+                })
+                .abs()
+                    <= half_width
+        };
+        (off.abs() <= half_width && gate()).then_some((along, off))
+    }
+}
+
+/// How the path is predicted from the vehicle's motion ([`PathEstimator`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case", tag = "model")]
+pub enum PathModel {
+    /// The curvature of the moment and how it changed over the last `window` seconds,
+    /// extrapolated as a clothoid ([`PredictedPath::clothoid`]); `window` 0: the arc of the
+    /// moment.
+    Clothoid { window: f64 },
+    /// The smallest curvature kept the same way over the last `hold` seconds (else
+    /// straight), gated by the arc of the moment.
+    Held { hold: f64 },
 }
 
 /// Most motion samples a [`PathEstimator`] keeps: 5 s (the longest hold its configuration
 /// allows) at 100 Hz.
 const HELD_SAMPLES: usize = 512;
 
-/// The path the vehicle has *held*: the curvature its motion has kept, the same way, for at
-/// least `hold` seconds (the smallest over that time), else straight.
+/// The vehicle's path from its motion, sample by sample ([`PathModel`]).
 ///
-/// Why not the yaw rate of the moment: extrapolated over a SLOW distance of 30-40 m, a lane
-/// change's yaw rate (hw-mock's: up to 0.06 rad/s at 30 km/h, a 140 m radius) or the heading
-/// corrections of a straight drive (KITTI odometry 06: 0.015 rad/s, a 700 m radius, the
-/// vehicle 4 cm off the straight line 12 m on) swing the far end of the corridor 1-3 m
-/// sideways onto the roadside. A bend's yaw rate is held for as long as the bend lasts; a
-/// lane change's keeps its sign for half the manoeuvre (1.5-3 s) and peaks briefly; steering
-/// corrections and yaw-rate noise change sign within a second. Holding the smallest curvature
-/// of the last `hold` seconds follows a bend once it has lasted `hold` and leaves a brief peak
-/// out. Fixed capacity: no allocation per update.
+/// **Clothoid** (the default): a driver steering into a bend, out of it, or along an
+/// on-ramp that opens up changes the curvature steadily; the yaw rate of the moment says
+/// where the vehicle goes for about a second, its change over the last few tenths of a
+/// second where it goes in the next. Measured on 38 minutes of real KITTI trajectories
+/// (`flyd bench --path`, docs/path.md): at the STOP distance the clothoid's corridor keeps
+/// an object on the real path more often and one beside it out more often than the arc of
+/// the moment's or the held curvature's.
+///
+/// **Held**: the curvature its motion has kept, the same way, for at least `hold` seconds
+/// (the smallest over that time), else straight, gated by the arc of the moment: what a
+/// brief yaw rate (a lane change, a heading correction) points at is left out, at the cost
+/// of a straight corridor over the first `hold` seconds of a bend.
+///
+/// Fixed capacity: no allocation per update.
 #[derive(Debug, Clone)]
 pub struct PathEstimator {
-    hold: f64,
-    /// (seconds the sample's motion was held, its curvature), oldest first from `head`.
-    samples: Box<[(f64, f64); HELD_SAMPLES]>,
+    model: PathModel,
+    /// (seconds the sample's motion was held, its curvature, metres travelled), oldest first
+    /// from `head`.
+    samples: Box<[(f64, f64, f64); HELD_SAMPLES]>,
     head: usize,
     len: usize,
     /// Seconds the kept samples cover.
@@ -151,9 +298,22 @@ impl PathEstimator {
     /// An estimator that extrapolates a curvature held for `hold` seconds (0: the curvature
     /// of the moment, [`PredictedPath::of_motion`]).
     pub fn new(hold: f64) -> Self {
+        Self::with_model(PathModel::Held { hold })
+    }
+
+    /// An estimator of the `model`'s paths.
+    pub fn with_model(model: PathModel) -> Self {
+        let seconds = |t: f64| if t.is_finite() { t.max(0.0) } else { 0.0 };
         Self {
-            hold: if hold.is_finite() { hold.max(0.0) } else { 0.0 },
-            samples: Box::new([(0.0, 0.0); HELD_SAMPLES]),
+            model: match model {
+                PathModel::Held { hold } => PathModel::Held {
+                    hold: seconds(hold),
+                },
+                PathModel::Clothoid { window } => PathModel::Clothoid {
+                    window: seconds(window),
+                },
+            },
+            samples: Box::new([(0.0, 0.0, 0.0); HELD_SAMPLES]),
             head: 0,
             len: 0,
             covered: 0.0,
@@ -170,30 +330,81 @@ impl PathEstimator {
     /// Takes the motion held over the last `dt` seconds and returns the paths to follow.
     pub fn update(&mut self, motion: VehicleMotion, dt: f64) -> PathEstimate {
         let now = PredictedPath::of_motion(motion);
-        PathEstimate {
-            held: self.held(now, dt),
-            now,
+        match self.model {
+            PathModel::Held { hold } => PathEstimate {
+                held: self.held(now, dt, motion.speed, hold),
+                now,
+            },
+            PathModel::Clothoid { window } => {
+                let path = if window == 0.0 {
+                    now
+                } else {
+                    self.keep(now, dt, motion.speed, window);
+                    PredictedPath::clothoid(motion, self.rate(window))
+                };
+                PathEstimate {
+                    held: path,
+                    now: path,
+                }
+            }
         }
     }
 
-    /// The held path, `now` being the motion's.
-    fn held(&mut self, now: PredictedPath, dt: f64) -> PredictedPath {
-        if self.hold == 0.0 {
-            return now;
-        }
+    /// Keeps the sample, and the newest ones that cover `window` seconds.
+    fn keep(&mut self, now: PredictedPath, dt: f64, speed: f64, window: f64) {
         let dt = if dt.is_finite() { dt.max(0.0) } else { 0.0 };
+        let ds = if speed.is_finite() {
+            speed.abs() * dt
+        } else {
+            0.0
+        };
         if self.len == HELD_SAMPLES {
             self.drop_oldest();
         }
-        self.samples[(self.head + self.len) % HELD_SAMPLES] = (dt, now.curvature);
+        self.samples[(self.head + self.len) % HELD_SAMPLES] = (dt, now.curvature, ds);
         self.len += 1;
         self.covered += dt;
-        // Keep the newest samples that cover `hold`, and no older one.
-        while self.len > 1 && self.covered - self.samples[self.head].0 >= self.hold {
+        while self.len > 1 && self.covered - self.samples[self.head].0 >= window {
             self.drop_oldest();
         }
+    }
+
+    /// How the curvature changed per metre over the kept samples (least squares), 0 until
+    /// they cover `window` seconds and half a metre.
+    fn rate(&self, window: f64) -> f64 {
+        if self.covered < window * (1.0 - 1e-9) && self.len < HELD_SAMPLES {
+            return 0.0;
+        }
+        // Each sample's curvature at the distance travelled since the oldest one.
+        let (mut n, mut sum_s, mut sum_k, mut sum_ss, mut sum_sk) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let mut s = 0.0;
+        for i in 0..self.len {
+            let (_, k, ds) = self.samples[(self.head + i) % HELD_SAMPLES];
+            if i > 0 {
+                s += ds;
+            }
+            n += 1.0;
+            sum_s += s;
+            sum_k += k;
+            sum_ss += s * s;
+            sum_sk += s * k;
+        }
+        let var = n * sum_ss - sum_s * sum_s;
+        if s < 0.5 || var <= 0.0 {
+            return 0.0;
+        }
+        let rate = (n * sum_sk - sum_s * sum_k) / var;
+        if rate.is_finite() { rate } else { 0.0 }
+    }
+
+    /// The held path, `now` being the motion's.
+    fn held(&mut self, now: PredictedPath, dt: f64, speed: f64, hold: f64) -> PredictedPath {
+        if hold == 0.0 {
+            return now;
+        }
+        self.keep(now, dt, speed, hold);
         // Rounding in `covered` must not deny a hold the samples do cover.
-        if self.covered < self.hold * (1.0 - 1e-9) && self.len < HELD_SAMPLES {
+        if self.covered < hold * (1.0 - 1e-9) && self.len < HELD_SAMPLES {
             return PredictedPath::STRAIGHT;
         }
         let mut held = now.curvature;
@@ -206,7 +417,7 @@ impl PathEstimator {
                 held = k;
             }
         }
-        PredictedPath { curvature: held }
+        PredictedPath::arc(held)
     }
 
     fn drop_oldest(&mut self) {
@@ -225,7 +436,7 @@ mod tests {
         let k = 1.0 / 55.0;
         // On any path of the fan: offset 0, the distance that path's.
         for c in [-k, -k / 2.0, 0.0, k / 3.0, k] {
-            let path = PredictedPath { curvature: c };
+            let path = PredictedPath::arc(c);
             let (x, z) = path.point(20.0);
             let (along, off) = nearest_in_fan(k, x as f32, z as f32).locate(x as f32, z as f32);
             assert!(
@@ -234,7 +445,7 @@ mod tests {
             );
         }
         // Beyond the fan: off its edge on that side, by as much as off that edge's path.
-        let edge = PredictedPath { curvature: k };
+        let edge = PredictedPath::arc(k);
         let (x, z) = edge.point(20.0);
         let (x, z) = (x as f32 - 2.0, z as f32);
         assert_eq!(nearest_in_fan(k, x, z), edge);
@@ -267,7 +478,7 @@ mod tests {
     #[test]
     fn a_point_beside_the_path_is_located_where_it_was_put() {
         for k in [0.05, -0.02, 0.2] {
-            let path = PredictedPath { curvature: k };
+            let path = PredictedPath::arc(k);
             for (along, offset) in [(3.0, 0.0), (10.0, 1.2), (6.0, -0.8)] {
                 let (x, z) = path.point_at(along, offset);
                 let (a, o) = path.locate(x as f32, z as f32);
@@ -283,7 +494,7 @@ mod tests {
     fn points_on_and_beside_an_arc_are_located_on_it() {
         // A left bend of 50 m radius and a right one of 120 m.
         for k in [0.02, -1.0 / 120.0] {
-            let p = PredictedPath { curvature: k };
+            let p = PredictedPath::arc(k);
             for s in [0.5, 10.0, 23.0, 41.0] {
                 let (x, z) = p.point(s);
                 let (along, offset) = p.locate(x as f32, z as f32);
@@ -304,7 +515,7 @@ mod tests {
     fn on_a_bend_the_straight_box_and_the_path_disagree() {
         // 20 m ahead on a 100 m left bend the path is 2 m left of the straight line: a car
         // there is on the path, what stands straight ahead is 2 m right of it.
-        let p = PredictedPath { curvature: 0.01 };
+        let p = PredictedPath::arc(0.01);
         let (x, z) = p.point(20.0);
         assert!(
             (x + 2.0).abs() < 0.05 && (z - 19.87).abs() < 0.05,
@@ -409,5 +620,100 @@ mod tests {
                 now: PredictedPath::of_motion(m)
             }
         );
+    }
+
+    #[test]
+    fn a_clothoid_is_as_far_sideways_as_its_curvature_says_and_ends_straight() {
+        // Into a bend: 0 to 0.01 1/m over 10 m, then (the reach) constant.
+        let p = PredictedPath {
+            curvature: 0.0,
+            rate: 0.001,
+        };
+        assert!((p.effective_curvature(6.0) - 0.002).abs() < 1e-12);
+        assert_eq!(p.curvature_at(40.0), 0.001 * CLOTHOID_REACH);
+        // Lateral displacement by integration against the effective arc's.
+        for s in [5.0, 12.0, 25.0] {
+            let (n, mut heading, mut x) = (10_000, 0.0f64, 0.0f64);
+            let h = s / f64::from(n);
+            for i in 0..n {
+                let u = (f64::from(i) + 0.5) * h;
+                heading += p.curvature_at(u) * h;
+                x -= heading.sin() * h;
+            }
+            let (px, _) = p.point(s);
+            assert!((px - x).abs() < 0.02, "at {s}: {px} vs {x}");
+        }
+        // Out of a bend: the curvature falls to 0 and stays there, never the other way.
+        let out = PredictedPath {
+            curvature: 0.04,
+            rate: -0.004,
+        };
+        assert_eq!(out.curvature_at(10.0), 0.0);
+        assert_eq!(out.curvature_at(30.0), 0.0);
+        assert!(out.effective_curvature(30.0) > 0.0);
+        // Located where it was put, beside it too.
+        for (along, offset) in [(8.0, 0.0), (15.0, 1.1), (12.0, -2.2)] {
+            let (x, z) = out.point_at(along, offset);
+            let (a, o) = out.locate(x as f32, z as f32);
+            assert!(
+                (f64::from(a) - along).abs() < 0.05 && (f64::from(o) - offset).abs() < 0.05,
+                "({along}, {offset}) located at ({a}, {o})"
+            );
+        }
+        // Never tighter than a car turns; an arc has no rate.
+        let tight = PredictedPath {
+            curvature: 0.15,
+            rate: 0.02,
+        };
+        assert_eq!(tight.curvature_at(20.0), MAX_CURVATURE);
+        assert!(!PredictedPath::arc(0.0).rate.is_nan() && PredictedPath::arc(0.0).is_straight());
+    }
+
+    #[test]
+    fn the_clothoid_estimator_measures_how_the_curvature_changes() {
+        // Into a bend at 10 m/s, 100 Hz: the yaw rate grows by 0.05 rad/s each second, the
+        // curvature by 0.005 1/m per 10 m: 0.0005 1/m^2.
+        let mut e = PathEstimator::with_model(PathModel::Clothoid { window: 0.3 });
+        let mut last = PathEstimate::STRAIGHT;
+        for i in 0..200 {
+            let t = f64::from(i) * 0.01;
+            last = e.update(
+                VehicleMotion {
+                    speed: 10.0,
+                    yaw_rate: 0.05 * t,
+                },
+                0.01,
+            );
+        }
+        assert!((last.held.rate - 0.0005).abs() < 1e-6, "{last:?}");
+        assert_eq!(last.held, last.now);
+        assert!((last.held.curvature - 0.00995).abs() < 1e-4, "{last:?}");
+        // A steady bend: no rate; a reset forgets the history (an arc until the window fills).
+        for _ in 0..100 {
+            last = e.update(
+                VehicleMotion {
+                    speed: 10.0,
+                    yaw_rate: 0.1,
+                },
+                0.01,
+            );
+        }
+        assert!(last.held.rate.abs() < 1e-9, "{last:?}");
+        e.reset();
+        let first = e.update(
+            VehicleMotion {
+                speed: 10.0,
+                yaw_rate: 0.2,
+            },
+            0.01,
+        );
+        assert_eq!(first.held, PredictedPath::arc(0.02));
+        // Window 0: the arc of the moment.
+        let mut arc = PathEstimator::with_model(PathModel::Clothoid { window: 0.0 });
+        let m = VehicleMotion {
+            speed: 8.0,
+            yaw_rate: 0.08,
+        };
+        assert_eq!(arc.update(m, 0.1).held, PredictedPath::of_motion(m));
     }
 }

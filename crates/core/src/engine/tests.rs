@@ -1148,7 +1148,7 @@ fn a_curved_corridor_is_scanned_along_its_path() {
         curvature: 0.08,
     };
     e.set_corridor(Some(corridor));
-    let path = crate::path::PredictedPath { curvature: 0.08 };
+    let path = crate::path::PredictedPath::arc(0.08);
     let sampler = &e.setup.sampler;
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
     let (mut left_of_straight, mut probed) = (0, 0);

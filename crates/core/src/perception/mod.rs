@@ -222,7 +222,7 @@ impl Perception {
                 corridor: CorridorCounts::default(),
                 estimated: false,
             },
-            path_estimator: PathEstimator::new(config.obstacle.path_hold_s),
+            path_estimator: PathEstimator::with_model(config.obstacle.path()),
             followed: None,
             reach: None,
             pending_reach: None,
@@ -400,7 +400,11 @@ impl Perception {
             // The corridor immigrants scan along the held path (the straight box on a fan,
             // which the fan holds).
             if let Some(c) = self.corridor.as_mut() {
-                let k = path.held.curvature as f32;
+                // A clothoid: the arc of its displacement halfway along the scan.
+                let k = path
+                    .held
+                    .effective_curvature(0.5 * f64::from(c.max_distance))
+                    as f32;
                 if c.curvature != k {
                     c.curvature = k;
                     self.engine.set_corridor(Some(*c));

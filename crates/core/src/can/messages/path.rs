@@ -103,10 +103,8 @@ mod tests {
     fn a_path_round_trips_at_its_resolution_and_saturates() {
         let c = |v| AliveCounter::new(v).expect("valid counter");
         let bend = PathMsg::of(Some(PathEstimate {
-            held: PredictedPath {
-                curvature: 1.0 / 60.0,
-            },
-            now: PredictedPath { curvature: -0.2 },
+            held: PredictedPath::arc(1.0 / 60.0),
+            now: PredictedPath::arc(-0.2),
         }));
         let back = PathMsg::decode(&bend.encode(c(3))).expect("decodes");
         assert!(back.valid);

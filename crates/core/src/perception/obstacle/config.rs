@@ -4,6 +4,14 @@
 
 use serde::{Deserialize, Serialize};
 
+/// The name of a [`crate::path::PathModel`] in the configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PathKind {
+    Clothoid,
+    Held,
+}
+
 /// What the obstacle stage looks for; the defaults are the vehicle's and the measurement's
 /// (docs/perception.md).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -29,6 +37,13 @@ pub struct ObstacleConfig {
     /// bend is followed once it has lasted this, a lane change's or a correction's brief yaw
     /// rate is not extrapolated over the SLOW distance. 0: the yaw rate of the moment.
     pub path_hold_s: f64,
+    /// How the path is predicted from the motion: `clothoid` (the curvature of the moment
+    /// and its change over `path_rate_window_s`, [`crate::path::PathModel::Clothoid`]) or
+    /// `held` (the curvature held over `path_hold_s`, gated by the arc of the moment).
+    pub path_model: PathKind,
+    /// `clothoid`: over how many seconds the curvature's change is measured (0: the arc of
+    /// the moment).
+    pub path_rate_window_s: f64,
     /// With `follow_path`, while the vehicle's motion is configured but not trusted (a
     /// motion fault), the corridor covers every path the vehicle could take at this yaw rate
     /// either way, at the assumed speed (a fan of arcs up to `fault_yaw_rate / speed`,
@@ -74,12 +89,28 @@ pub struct ObstacleConfig {
     pub disparity_error_px: f64,
 }
 
+impl ObstacleConfig {
+    /// The path model `path_model` names, with its window or hold.
+    pub fn path(&self) -> crate::path::PathModel {
+        match self.path_model {
+            PathKind::Clothoid => crate::path::PathModel::Clothoid {
+                window: self.path_rate_window_s,
+            },
+            PathKind::Held => crate::path::PathModel::Held {
+                hold: self.path_hold_s,
+            },
+        }
+    }
+}
+
 impl Default for ObstacleConfig {
     fn default() -> Self {
         Self {
             corridor_half_width: 1.2,
             follow_path: true,
             path_hold_s: 2.0,
+            path_model: PathKind::Held,
+            path_rate_window_s: 0.3,
             fault_yaw_rate: 0.15,
             min_height: 0.3,
             max_height: 2.0,
@@ -214,6 +245,12 @@ impl ObstacleConfig {
         within("obstacle.max_distance", self.max_distance, 5.0, 200.0)?;
         within("obstacle.max_bottom", self.max_bottom, 0.5, 5.0)?;
         within("obstacle.path_hold_s", self.path_hold_s, 0.0, 5.0)?;
+        within(
+            "obstacle.path_rate_window_s",
+            self.path_rate_window_s,
+            0.0,
+            2.0,
+        )?;
         // At most the largest plausible yaw rate a VCU_Motion frame may carry (1.5 rad/s).
         within("obstacle.fault_yaw_rate", self.fault_yaw_rate, 0.0, 1.5)?;
         within("obstacle.max_ambiguity", self.max_ambiguity, 0.1, 1.0)?;

@@ -81,7 +81,7 @@ mod cluster;
 mod config;
 
 use cluster::{CellSet, Unique, nearest_cluster, reaches_the_road, stride_for};
-pub use config::{ObstacleConfig, PerceptionParamError};
+pub use config::{ObstacleConfig, PathKind, PerceptionParamError};
 
 /// The nearest obstacle in the corridor, vehicle frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -332,27 +332,28 @@ impl ObstacleFinder {
         let cell_px = c.cell_px.max(1) as f32;
         let mut i = 0usize;
         let mut scanned = 0;
-        let (path, gate, fan) = (self.path, self.gate, self.fan);
-        let gated = gate != path;
+        let fan = self.fan;
+        let paths = crate::path::PathEstimate {
+            held: self.path,
+            now: self.gate,
+        };
         while scanned < len && self.todo.len() < wanted && self.sample.len() < most {
             let (x, y, z) = (pop.x[i], pop.y[i], pop.z[i]);
             let h = y - (r0 + rz * z + rx * x);
-            // Where it is along the predicted path and off it (straight: z and x).
-            let (along, off) = if let Some(k) = fan.filter(|_| z > 0.0) {
-                crate::path::nearest_in_fan(k, x, z).locate(x, z)
-            } else if !path.is_straight() && z > 0.0 {
-                path.locate(x, z)
+            // Where it is along the predicted path and off it (straight: z and x), if it is
+            // in the corridor.
+            let located = if let Some(k) = fan.filter(|_| z > 0.0) {
+                let (along, off) = crate::path::nearest_in_fan(k, x, z).locate(x, z);
+                (off.abs() <= half).then_some((along, off))
             } else {
-                (z, x)
+                paths.locate_in(x, z, half)
             };
             let inside = i < immigrants_from
                 && pop.raw_fitness[i] > 0.0
-                && off.abs() <= half
                 && (lo..=hi).contains(&h)
                 && z > 0.0
-                && along <= far
-                && (!gated || gate.locate(x, z).1.abs() <= half);
-            if inside {
+                && located.is_some_and(|(along, _)| along <= far);
+            if let (true, Some((along, off))) = (inside, located) {
                 let m = self.memo[i];
                 let at = [x.to_bits(), y.to_bits(), z.to_bits()];
                 if m.epoch == self.epoch && m.at == at {
