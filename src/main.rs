@@ -87,8 +87,8 @@ struct BenchArgs {
     #[arg(long, value_name = "POSES", num_args = 0.., conflicts_with = "end_to_end")]
     path: Option<Vec<PathBuf>>,
     /// With --path: the path model instead of the configuration's: arc (the arc of the
-    /// moment), clothoid or held.
-    #[arg(long, requires = "path", value_parser = ["arc", "clothoid", "held"])]
+    /// moment), clothoid, clothoid-gated or held.
+    #[arg(long, requires = "path", value_parser = ["arc", "clothoid", "clothoid-gated", "held"])]
     path_model: Option<String>,
     /// With --path: white noise added to each moment's yaw rate, rad/s (standard deviation).
     #[arg(long, requires = "path", default_value_t = 0.0)]
@@ -134,8 +134,9 @@ struct ReplayArgs {
     /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian, drive-30, drive-40,
     /// drive-30-to-pedestrian, drive-40-to-pedestrian, drive-30-lane-change, bend-30,
     /// bend-30-to-pedestrian, bend-30-parked-car, bend-40, bend-40-to-pedestrian,
-    /// bend-40-parked-car (the moving ones decided at their own speed, the flies moved with
-    /// it).
+    /// bend-40-parked-car, ramp-30, ramp-30-stopped-car, ramp-30-pedestrian-on-kerb, ramp-40,
+    /// ramp-40-stopped-car, s-bend-40, s-bend-40-to-pedestrian (the moving ones decided at
+    /// their own speed, the flies moved with it).
     #[arg(long)]
     scenario: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
@@ -463,6 +464,9 @@ fn bench_path_command(args: &BenchArgs, paths: &[PathBuf]) -> Result<()> {
     let model = match args.path_model.as_deref() {
         Some("arc") => PathModel::Clothoid { window: 0.0 },
         Some("clothoid") => PathModel::Clothoid {
+            window: obstacle.path_rate_window_s,
+        },
+        Some("clothoid-gated") => PathModel::ClothoidGated {
             window: obstacle.path_rate_window_s,
         },
         Some("held") => PathModel::Held {

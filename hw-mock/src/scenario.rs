@@ -2,10 +2,15 @@
 //! reaction-time measurement needs. The vehicle is stationary in all but the `driving*` and
 //! `drive-*` ones ([`Scenario::speed_at`]),
 //! where road and roadside come towards it ([`Scene::travelled`]); in `drive-30-lane-change`
-//! it also turns ([`Scenario::yaw_rate_at`], [`Scene::heading`]). Obstacles are always given in
-//! the vehicle frame. A moving vehicle's frames each cost a full render (a few frames a second
+//! it also turns ([`Scenario::yaw_rate_at`], [`Scene::heading`]); on the `bend-*` roads it
+//! follows a constant curvature ([`Scene::on_bend`]), on the `ramp-*` and `s-bend-*` roads one
+//! that changes with distance ([`Scene::on_road`], [`crate::world::profile`]). Obstacles are
+//! given in the vehicle frame, or fixed to the road ([`Scene::fixed`]). A moving vehicle's frames each cost a full render (a few frames a second
 //! at 640x480): those scenarios are for offline replay, not a live mock camera.
 
+use std::sync::LazyLock;
+
+use crate::world::profile::{Road, Segment};
 use crate::world::{Material, Obstacle, Scene, bend};
 
 const FPS: f64 = 30.0;
@@ -42,6 +47,62 @@ enum Kind {
         curvature: f64,
         around: Around,
     },
+    /// At `speed` m/s along the centre line of a road of changing curvature, from its origin;
+    /// with what [`Around`] says stands on it.
+    Road {
+        speed: f64,
+        geometry: Geometry,
+        around: Around,
+    },
+}
+
+/// The roads of changing curvature ([`crate::world::profile`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Geometry {
+    /// A tight on-ramp to the left: straight 10 m, a clothoid over 20 m into a 25 m radius,
+    /// held 25 m, then opening over 60 m to straight.
+    Ramp30,
+    /// The same with a 50 m radius.
+    Ramp40,
+    /// An S-bend: a clothoid over 25 m into an 80 m radius to the left, held 5 m, a clothoid
+    /// over 25 m through straight into 80 m to the right, held 30 m, a clothoid over 25 m out
+    /// to straight.
+    SBend40,
+}
+
+static RAMP_30: [Segment; 5] = ramp(1.0 / 25.0);
+static RAMP_40: [Segment; 5] = ramp(1.0 / 50.0);
+static S_BEND_40: [Segment; 5] = [
+    Segment::clothoid(25.0, 0.0, 1.0 / 80.0),
+    Segment::arc(5.0, 1.0 / 80.0),
+    Segment::clothoid(25.0, 1.0 / 80.0, -1.0 / 80.0),
+    Segment::arc(30.0, -1.0 / 80.0),
+    Segment::clothoid(25.0, -1.0 / 80.0, 0.0),
+];
+
+/// An on-ramp bending left into curvature `k` and opening up.
+const fn ramp(k: f64) -> [Segment; 5] {
+    [
+        Segment::straight(10.0),
+        Segment::clothoid(20.0, 0.0, k),
+        Segment::arc(25.0, k),
+        Segment::clothoid(60.0, k, 0.0),
+        Segment::straight(40.0),
+    ]
+}
+
+impl Geometry {
+    /// The road, built the first time it is asked for.
+    fn road(self) -> &'static Road {
+        static R30: LazyLock<Road> = LazyLock::new(|| Road::new(&RAMP_30));
+        static R40: LazyLock<Road> = LazyLock::new(|| Road::new(&RAMP_40));
+        static S40: LazyLock<Road> = LazyLock::new(|| Road::new(&S_BEND_40));
+        match self {
+            Geometry::Ramp30 => &R30,
+            Geometry::Ramp40 => &R40,
+            Geometry::SBend40 => &S40,
+        }
+    }
 }
 
 /// What stands on a bend.
@@ -54,7 +115,16 @@ enum Around {
     /// A car parked on the outside, its rear this far along the bend, its near side
     /// [`PARKED_GAP`] beyond the centre line (0.5 m outside flyd's default corridor).
     ParkedCar(f64),
+    /// A car stopped on the centre line (laid along the road), its rear this far along.
+    StoppedCar(f64),
+    /// A pedestrian standing at road coordinates (along, offset): offset metres right of the
+    /// centre line.
+    PedestrianBeside(f64, f64),
 }
+
+/// The kerb pedestrian of `ramp-30-pedestrian-on-kerb`: on the inside (left) kerb strip,
+/// beyond the edge line, in the bend.
+const KERB_PEDESTRIAN: (f64, f64) = (35.0, -2.7);
 
 /// The parked car's near side, metres from the centre line.
 const PARKED_GAP: f64 = 1.7;
@@ -91,7 +161,7 @@ const LANE_CHANGE_LATERAL: f64 = 2.0;
 const LANE_CHANGE_FROM: f64 = 0.5;
 const LANE_CHANGE_DURATION: f64 = 5.0;
 
-const ALL: [Scenario; 17] = [
+const ALL: [Scenario; 24] = [
     Scenario {
         name: "empty-road",
         description: "Nothing in the lane; roadside walls, poles and trees only.",
@@ -234,6 +304,76 @@ const ALL: [Scenario; 17] = [
         },
         frames: 120,
     },
+    Scenario {
+        name: "ramp-30",
+        description: "At 30 km/h up a tight on-ramp to the left, a single lane: straight 10 m, a clothoid over 20 m into a 25 m radius (yaw rate up to 0.33 rad/s), held 25 m, then opening over 60 m to straight; delineator posts every 50 m on both kerbs, a guard rail on the outside; nothing in the path (5 s, 41 m). Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_30,
+            geometry: Geometry::Ramp30,
+            around: Around::Empty,
+        },
+        frames: 150,
+    },
+    Scenario {
+        name: "ramp-30-stopped-car",
+        description: "ramp-30 with a car stopped in the lane on the centre line, its rear 40 m along the road at the first frame (in the 25 m radius), 4.2 m at the last; the STOP distance at 30 km/h (9 m/s^2) is 10.0 m. Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_30,
+            geometry: Geometry::Ramp30,
+            around: Around::StoppedCar(40.0),
+        },
+        frames: 130,
+    },
+    Scenario {
+        name: "ramp-30-pedestrian-on-kerb",
+        description: "ramp-30 with a pedestrian standing on the inside (left) kerb strip in the bend, 35 m along at the first frame, 2.7 m left of the centre line (beyond the edge line at 1.9 m): the vehicle passes it at 4.2 s. Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_30,
+            geometry: Geometry::Ramp30,
+            around: Around::PedestrianBeside(KERB_PEDESTRIAN.0, KERB_PEDESTRIAN.1),
+        },
+        frames: 150,
+    },
+    Scenario {
+        name: "ramp-40",
+        description: "At 40 km/h up an on-ramp to the left, a single lane: straight 10 m, a clothoid over 20 m into a 50 m radius (yaw rate up to 0.22 rad/s), held 25 m, then opening over 60 m to straight; delineator posts every 50 m on both kerbs, a guard rail on the outside; nothing in the path (5 s, 55 m). Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_40,
+            geometry: Geometry::Ramp40,
+            around: Around::Empty,
+        },
+        frames: 150,
+    },
+    Scenario {
+        name: "ramp-40-stopped-car",
+        description: "ramp-40 with a car stopped in the lane on the centre line, its rear 50 m along the road at the first frame (in the 50 m radius), 4.1 m at the last; the STOP distance at 40 km/h (9 m/s^2) is 14.4 m. Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_40,
+            geometry: Geometry::Ramp40,
+            around: Around::StoppedCar(50.0),
+        },
+        frames: 125,
+    },
+    Scenario {
+        name: "s-bend-40",
+        description: "At 40 km/h through an S-bend, a single lane: a clothoid over 25 m into an 80 m radius to the left (yaw rate 0.14 rad/s), held 5 m, a clothoid over 25 m through straight into 80 m to the right, held 30 m, a clothoid over 25 m out to straight; delineator posts every 50 m on both kerbs, a guard rail on the outside of each bend; nothing in the path (5 s, 55 m). Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_40,
+            geometry: Geometry::SBend40,
+            around: Around::Empty,
+        },
+        frames: 150,
+    },
+    Scenario {
+        name: "s-bend-40-to-pedestrian",
+        description: "s-bend-40 with a pedestrian on the centre line in its second (right) half, 50 m along the road at the first frame (7.5 m past the inflection), 4.1 m at the last; the vehicle is still turning left when it comes into view; the STOP distance at 40 km/h (9 m/s^2) is 14.4 m. Offline replay only.",
+        kind: Kind::Road {
+            speed: KMH_40,
+            geometry: Geometry::SBend40,
+            around: Around::Pedestrian(50.0),
+        },
+        frames: 125,
+    },
 ];
 
 /// A car (as [`Obstacle::car`]) parked on the outside of a bend of `curvature`, its rear
@@ -284,6 +424,7 @@ impl Scenario {
                 | Kind::Approach { .. }
                 | Kind::LaneChange { .. }
                 | Kind::Bend { .. }
+                | Kind::Road { .. }
         )
     }
 
@@ -344,6 +485,32 @@ impl Scenario {
                 }
                 scene
             }
+            Kind::Road {
+                speed,
+                geometry,
+                around,
+            } => {
+                let road = geometry.road();
+                let along = speed * seconds(0);
+                let fixed = match around {
+                    Around::StoppedCar(rear) => {
+                        road.lay([-0.9, 0.0, rear], [0.9, 1.5, rear + 4.2], Material::CAR)
+                    }
+                    _ => vec![],
+                };
+                let mut scene = Scene::on_road(road, along, 0.0, fixed, vec![]);
+                let standing = match around {
+                    Around::Pedestrian(at) => Some((at, 0.0)),
+                    Around::PedestrianBeside(at, offset) => Some((at, offset)),
+                    _ => None,
+                };
+                if let Some((at, offset)) = standing {
+                    let (x, z) = road.point(at, offset);
+                    let [x, _, z] = scene.vehicle_point([x, 0.0, z]);
+                    scene.obstacles.push(Obstacle::pedestrian(x, z));
+                }
+                scene
+            }
         }
     }
 
@@ -357,14 +524,16 @@ impl Scenario {
             Kind::Cruise { speed }
             | Kind::Approach { speed, .. }
             | Kind::LaneChange { speed, .. }
-            | Kind::Bend { speed, .. } => speed,
+            | Kind::Bend { speed, .. }
+            | Kind::Road { speed, .. } => speed,
             _ => 0.0,
         }
     }
 
     /// The vehicle's yaw rate at `frame`, rad/s (positive turning left): speed times the
-    /// road's curvature on a bend, the S-curve of the lane change, 0 otherwise. Held over the
-    /// frame, as the vehicle's motion message reports it.
+    /// road's curvature on a bend or where the vehicle is on a road of changing curvature, the
+    /// S-curve of the lane change, 0 otherwise. Held over the frame, as the vehicle's motion
+    /// message reports it.
     pub fn yaw_rate_at(&self, frame: u32) -> f64 {
         match self.kind {
             Kind::LaneChange {
@@ -384,6 +553,11 @@ impl Scenario {
             Kind::Bend {
                 speed, curvature, ..
             } if frame < self.frames => speed * curvature,
+            Kind::Road {
+                speed, geometry, ..
+            } if frame < self.frames => {
+                speed * geometry.road().curvature(speed * (f64::from(frame) / FPS))
+            }
             _ => 0.0,
         }
     }
@@ -504,6 +678,98 @@ mod tests {
         assert_eq!(x_at(149), 0.0);
         // Past the end: the last scene.
         assert_eq!(s.scene_at(10_000), s.scene_at(149));
+    }
+
+    #[test]
+    fn roads_of_changing_curvature_are_followed_frame_by_frame() {
+        for (name, k, speed) in [
+            ("ramp-30", 1.0 / 25.0, KMH_30),
+            ("ramp-40", 1.0 / 50.0, KMH_40),
+            ("s-bend-40", 1.0 / 80.0, KMH_40),
+        ] {
+            let s = Scenario::by_name(name).expect("exists");
+            assert!(!s.live());
+            let road = match s.kind {
+                Kind::Road { geometry, .. } => geometry.road(),
+                _ => panic!("{name} is on a road of a profile"),
+            };
+            // The yaw rate is the speed times the curvature where the vehicle is.
+            let rates: Vec<f64> = (0..s.frame_count()).map(|f| s.yaw_rate_at(f)).collect();
+            let most = rates.iter().fold(0.0_f64, |m, r| m.max(r.abs()));
+            assert!((most - speed * k).abs() < 1e-9, "{name}: {most}");
+            for f in [0, 40, 90, 149] {
+                let along = speed * (f64::from(f) / FPS);
+                let scene = s.scene_at(f);
+                let (x, z) = road.point(along, 0.0);
+                assert_eq!((scene.lateral, scene.travelled), (x, z), "{name} {f}");
+                assert_eq!(scene.heading, road.heading(along));
+                assert_eq!(s.yaw_rate_at(f), speed * road.curvature(along));
+            }
+            // Integrating the reported yaw rate frame by frame stays with the road's heading.
+            let heading: f64 = rates.iter().map(|r| r / FPS).sum();
+            let end = s.frame_count() as f64 * speed / FPS;
+            assert!(
+                (heading - road.heading(end)).abs() < 0.02,
+                "{name}: {heading} vs {}",
+                road.heading(end)
+            );
+        }
+        // The ramp's yaw rate: nothing on the first 10 m, rising to 0.33 rad/s at 30 m.
+        let ramp = Scenario::by_name("ramp-30").expect("exists");
+        assert_eq!(ramp.yaw_rate_at(30), 0.0);
+        assert!((ramp.yaw_rate_at(108) - KMH_30 / 25.0).abs() < 1e-12);
+        // The S-bend turns left, then right.
+        let s = Scenario::by_name("s-bend-40").expect("exists");
+        assert!(s.yaw_rate_at(70) > 0.1 && s.yaw_rate_at(149) < -0.1);
+    }
+
+    #[test]
+    fn what_stands_on_the_new_roads_stands_where_said() {
+        let road = Geometry::Ramp30.road();
+        // The stopped car: laid on the centre line, its rear 40 m along, straight ahead of
+        // the vehicle along the road 4.2 m at the last frame.
+        let s = Scenario::by_name("ramp-30-stopped-car").expect("exists");
+        let last = s.scene_at(s.frame_count() - 1);
+        assert!(!last.fixed.is_empty() && last.fixed.iter().all(Obstacle::is_valid));
+        let eye = last.world_point([0.0, 1.0, 0.0]);
+        let ahead = last.world_point([0.0, 1.0, 1.0]);
+        let ray = crate::world::Ray {
+            origin: eye,
+            dir: [ahead[0] - eye[0], 0.0, ahead[2] - eye[2]],
+        };
+        let hit = last
+            .fixed
+            .iter()
+            .filter_map(|o| o.intersect(&ray))
+            .map(|h| h.t)
+            .fold(f64::INFINITY, f64::min);
+        assert!((hit - 4.17).abs() < 0.05, "{hit}");
+        // The kerb pedestrian: 2.7 m left of the centre line, 35 m along.
+        let k = Scenario::by_name("ramp-30-pedestrian-on-kerb").expect("exists");
+        for f in [0, 60, 120] {
+            let scene = k.scene_at(f);
+            let Obstacle::Cylinder { x, z, .. } = scene.obstacles[0] else {
+                panic!("a pedestrian");
+            };
+            let w = scene.world_point([x, 0.0, z]);
+            let (along, offset) = road.locate(w[0], w[2]);
+            assert!((along - 35.0).abs() < 1e-9 && (offset + 2.7).abs() < 1e-9);
+        }
+        // The S-bend's pedestrian: on the centre line where the road already bends right.
+        let p = Scenario::by_name("s-bend-40-to-pedestrian").expect("exists");
+        let Obstacle::Cylinder { x, z, .. } = p.scene_at(0).obstacles[0] else {
+            panic!("a pedestrian");
+        };
+        let w = p.scene_at(0).world_point([x, 0.0, z]);
+        let road = Geometry::SBend40.road();
+        let (along, offset) = road.locate(w[0], w[2]);
+        assert!((along - 50.0).abs() < 1e-9 && offset.abs() < 1e-9);
+        assert!(road.curvature(along) < 0.0);
+        let last = p.scene_at(p.frame_count() - 1);
+        let Obstacle::Cylinder { z, .. } = last.obstacles[0] else {
+            panic!("a pedestrian");
+        };
+        assert!(z > 3.0 && z < 5.0, "{z}");
     }
 
     #[test]

@@ -158,6 +158,14 @@ pub fn run(items: &[Item], options: &Options) -> Result<Report, EvalError> {
         }
         Ok(())
     })?;
+    if options.outputs {
+        // Why each run braked, at a glance.
+        let index = options.work.join("index.html");
+        crate::replay::decided::write_index(&options.work).map_err(|source| EvalError::Io {
+            path: index.display().to_string(),
+            source,
+        })?;
+    }
     let results = results.into_inner().unwrap_or_else(|p| p.into_inner());
     let mut per_item: Vec<Vec<Outcome>> = vec![Vec::new(); items.len()];
     for ((i, _), outcome) in jobs.iter().zip(results) {

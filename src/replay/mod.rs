@@ -27,6 +27,7 @@
 
 pub mod can_motion;
 pub mod command;
+pub mod decided;
 pub mod feed;
 pub mod output;
 pub mod poses;
@@ -247,6 +248,8 @@ pub struct Replay {
     pub row_offset: Option<RowOffset>,
     /// The correction applied (the calibration's, or measured on the first frame).
     pub row_correction: Option<RowCorrection>,
+    /// The frame the most severe alarm (the first STOP, else the first SLOW) was decided on.
+    pub decided: Option<decided::Decided>,
 }
 
 impl Replay {
@@ -293,6 +296,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let mut blindness = BlindDebounce::new(settings.blind_matched, settings.blind_pairs);
     // A command each generation: the period's input is that generation's snapshot.
     let mut period = PeriodInput::default();
+    let mut alarm: Option<decided::Decided> = None;
     for g in 0..settings.generations {
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
         let mut predicted = None;
@@ -377,6 +381,24 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         let chosen = period.choose(|| None);
         let decision = (chosen.from != InputSource::Untrusted)
             .then(|| decider.update(chosen.with_faults(faults), time));
+        if let Some(d) = decision
+            && d.changed
+            && d.command > d.previous
+            && d.reason == CommandReason::Perception
+            && alarm.as_ref().is_none_or(|a| d.command > a.command)
+        {
+            alarm = Some(decided::Decided::capture(
+                d.command,
+                wanted,
+                feed.frame_name(wanted),
+                time,
+                speed,
+                &perception,
+                &report,
+                &left,
+                feed.rig(),
+            ));
+        }
         if let Some(rec) = recording.as_mut() {
             let frame_time = Duration::from_secs_f64(wanted as f64 / fps);
             if new_frame {
@@ -424,6 +446,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         motion_source: feed.motion_source(),
         row_offset,
         row_correction,
+        decided: alarm,
     })
 }
 

@@ -220,5 +220,8 @@ pub fn write_outputs(dir: &Path, replay: &Replay) -> Result<(), ReplayError> {
     warning_map(left.width(), left.height(), pop)
         .save(&p)
         .map_err(save_err(&p))?;
+    if let Some(decided) = &replay.decided {
+        decided.write(dir)?;
+    }
     Ok(())
 }

@@ -225,6 +225,13 @@ impl PathEstimate {
         now: PredictedPath::STRAIGHT,
     };
 
+    /// How far apart the two paths are `along` metres ahead, metres: how unsure the corridor
+    /// is of where the vehicle goes there (0 where they agree, and for a straight box).
+    pub fn spread(&self, along: f64) -> f64 {
+        let (a, b) = (self.held.point(along), self.now.point(along));
+        (a.0 - b.0).hypot(a.1 - b.1)
+    }
+
     /// Where the vehicle-frame point `(x, z)` is in the corridor `half_width` metres either
     /// side of the paths: `(along, offset)` on [`PathEstimate::held`] when it is within
     /// `half_width` of both paths, else `None`. What the obstacle stage and `flyd bench
@@ -257,6 +264,9 @@ pub enum PathModel {
     /// extrapolated as a clothoid ([`PredictedPath::clothoid`]); `window` 0: the arc of the
     /// moment.
     Clothoid { window: f64 },
+    /// The clothoid, and a fly must also be in the corridor of the arc of the moment: on
+    /// both the path where the curvature keeps changing and the one where it stops now.
+    ClothoidGated { window: f64 },
     /// The smallest curvature kept the same way over the last `hold` seconds (else
     /// straight), gated by the arc of the moment.
     Held { hold: f64 },
@@ -312,6 +322,9 @@ impl PathEstimator {
                 PathModel::Clothoid { window } => PathModel::Clothoid {
                     window: seconds(window),
                 },
+                PathModel::ClothoidGated { window } => PathModel::ClothoidGated {
+                    window: seconds(window),
+                },
             },
             samples: Box::new([(0.0, 0.0, 0.0); HELD_SAMPLES]),
             head: 0,
@@ -335,16 +348,17 @@ impl PathEstimator {
                 held: self.held(now, dt, motion.speed, hold),
                 now,
             },
-            PathModel::Clothoid { window } => {
+            PathModel::Clothoid { window } | PathModel::ClothoidGated { window } => {
                 let path = if window == 0.0 {
                     now
                 } else {
                     self.keep(now, dt, motion.speed, window);
                     PredictedPath::clothoid(motion, self.rate(window))
                 };
+                let gated = matches!(self.model, PathModel::ClothoidGated { .. });
                 PathEstimate {
                     held: path,
-                    now: path,
+                    now: if gated { now } else { path },
                 }
             }
         }
@@ -715,5 +729,42 @@ mod tests {
             yaw_rate: 0.08,
         };
         assert_eq!(arc.update(m, 0.1).held, PredictedPath::of_motion(m));
+    }
+
+    #[test]
+    fn the_gated_clothoid_holds_both_plausible_paths_and_says_how_far_apart_they_are() {
+        let mut e = PathEstimator::with_model(PathModel::ClothoidGated { window: 0.3 });
+        let mut last = PathEstimate::STRAIGHT;
+        for i in 0..100 {
+            let t = f64::from(i) * 0.01;
+            last = e.update(
+                VehicleMotion {
+                    speed: 10.0,
+                    yaw_rate: 0.05 * t,
+                },
+                0.01,
+            );
+        }
+        // The centre line keeps steering in; the gate is where the vehicle goes if it stops.
+        assert!(last.held.rate > 0.0 && last.now.rate == 0.0, "{last:?}");
+        assert_eq!(last.held.curvature, last.now.curvature);
+        // Apart by rate s^3 / 6 (small angles): 0.0005 * 1000 / 6 at 10 m.
+        let spread = last.spread(10.0);
+        assert!((spread - 0.0005 * 1000.0 / 6.0).abs() < 0.01, "{spread}");
+        assert!(last.spread(20.0) > 7.0 * spread);
+        assert_eq!(PathEstimate::STRAIGHT.spread(30.0), 0.0);
+        // On the clothoid 15 m ahead: in the corridor of both.
+        let (x, z) = last.held.point(15.0);
+        assert!(last.spread(15.0) > 0.25);
+        assert!(last.locate_in(x as f32, z as f32, 1.2).is_some());
+        // The arc bends less (it is right of the clothoid): 1 m left of the clothoid is 1.28 m
+        // left of the arc, out; 1 m right of it 0.72 m right of the arc, in.
+        let left = last.held.point_at(15.0, -1.0);
+        assert!(last.locate_in(left.0 as f32, left.1 as f32, 1.2).is_none());
+        let right = last.held.point_at(15.0, 1.0);
+        assert!(
+            last.locate_in(right.0 as f32, right.1 as f32, 1.2)
+                .is_some()
+        );
     }
 }

@@ -191,7 +191,7 @@ pub struct CameraRenderer {
     tiles: Vec<Tile>,
     /// The static world (road, sky, roadside) alone, the vehicle at pose `bg_pose`
     /// ([`pose_bits`]).
-    bg_pose: [u64; 4],
+    bg_pose: [u64; 5],
     /// ... and with these obstacles fixed to the road ([`Scene::fixed`]).
     bg_fixed: Vec<crate::world::Obstacle>,
     bg_rgb: Vec<u8>,
@@ -418,12 +418,16 @@ impl CameraRenderer {
     }
 }
 
-/// The vehicle's pose in `scene`, bit for bit: a background is rendered again when it moves.
-fn pose_bits(scene: &Scene) -> [u64; 4] {
+/// The vehicle's pose in `scene`, bit for bit, and the road it is on (a road of a profile by
+/// its address): a background is rendered again when either changes.
+fn pose_bits(scene: &Scene) -> [u64; 5] {
     [
         scene.travelled.to_bits(),
         scene.lateral.to_bits(),
         scene.heading.to_bits(),
         scene.bend.to_bits(),
+        scene
+            .road
+            .map_or(0, |r| std::ptr::from_ref(r).addr() as u64),
     ]
 }

@@ -59,9 +59,9 @@ pub(super) fn is_valid(k: f64, min: [f64; 3], max: [f64; 3]) -> bool {
 }
 
 /// A sphere (centre, radius) enclosing something.
-type Sphere = ([f64; 3], f64);
+pub(super) type Sphere = ([f64; 3], f64);
 /// An axis-aligned box (low and high corners).
-type Aabb = ([f64; 3], [f64; 3]);
+pub(super) type Aabb = ([f64; 3], [f64; 3]);
 
 /// A sphere and a road-frame box enclosing a valid bent box: the middle of the box, and as
 /// far as the longest arc of it plus its width and height.
@@ -82,6 +82,21 @@ pub(super) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
 /// height, along) of a road of curvature `k`: the faces and texture coordinates a box has
 /// ([`Obstacle`]), laid along the bend. Assumes [`is_valid`].
 pub(super) fn intersect(ray: &Ray, k: f64, min: [f64; 3], max: [f64; 3]) -> Option<Hit> {
+    intersect_part(ray, k, min, max, [min[2], max[2]], [true, true])
+}
+
+/// [`intersect`] restricted to the part of the box between `part[0]` and `part[1]` along (within
+/// `min[2]..max[2]`): what one piece of a longer box draws ([`super::profile`]). Its end faces
+/// (at `min[2]`, `max[2]`) are there only where `ends` says so; texture coordinates are the whole
+/// box's.
+pub(super) fn intersect_part(
+    ray: &Ray,
+    k: f64,
+    min: [f64; 3],
+    max: [f64; 3],
+    part: [f64; 2],
+    ends: [bool; 2],
+) -> Option<Hit> {
     let (o, d) = (ray.origin, ray.dir);
     // Candidate surfaces: 0/1 the mantles at offsets min/max, 2/3 the planes at heights
     // min/max, 4/5 the radial planes at min/max along. At most two roots a mantle.
@@ -122,6 +137,9 @@ pub(super) fn intersect(ray: &Ray, k: f64, min: [f64; 3], max: [f64; 3]) -> Opti
         }
     }
     for (face, along) in [(4, min[2]), (5, max[2])] {
+        if !ends[face - 4] {
+            continue;
+        }
         // The plane through the centre line's point `along` on, normal to its direction.
         let (px, pz) = point(k, along, 0.0);
         let (sin, cos) = heading(k, along).sin_cos();
@@ -138,7 +156,8 @@ pub(super) fn intersect(ray: &Ray, k: f64, min: [f64; 3], max: [f64; 3]) -> Opti
         let p = ray.at(t);
         let (along, offset) = locate(k, p[0], p[2]);
         let within = |v: f64, a: usize| v >= min[a] - ON_SURFACE && v <= max[a] + ON_SURFACE;
-        if !(within(offset, 0) && within(p[1], 1) && within(along, 2)) {
+        let in_part = along >= part[0] - ON_SURFACE && along <= part[1] + ON_SURFACE;
+        if !(within(offset, 0) && within(p[1], 1) && in_part) {
             return None;
         }
         let (sin, cos) = heading(k, along).sin_cos();
@@ -202,7 +221,7 @@ pub fn bent(k: f64, props: &[Obstacle]) -> Vec<Obstacle> {
                     material,
                 }
             }
-            bent @ Obstacle::Bent { .. } => bent,
+            laid @ (Obstacle::Bent { .. } | Obstacle::Laid { .. }) => laid,
         })
         .collect();
     let outside: f64 = if k >= 0.0 { 1.0 } else { -1.0 };

@@ -104,6 +104,7 @@ pub(crate) fn footprint(p: [f64; 3], n: [f64; 3], eye: [f64; 3]) -> (f64, f64, f
 }
 
 pub mod bend;
+pub mod profile;
 mod shading;
 
 use shading::*;
@@ -115,6 +116,48 @@ use shading::*;
 /// starting at z = 0), solid edge lines, kerb at |x| in [5, 5.25], grass beyond.
 fn road_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
     let ax = x.abs();
+    let [asphalt, kerb, grass, paint] = surfaces(x, z, along);
+    let mut c = asphalt;
+    let dash = band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06)
+        * periodic_coverage(z, along, 9.0, 0.0, 3.0);
+    let edge = band_coverage(ax, across, 4.75, 4.9);
+    c = lerp3(c, paint, (dash + edge).min(1.0));
+    c = lerp3(
+        c,
+        kerb,
+        band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH),
+    );
+    lerp3(
+        c,
+        grass,
+        band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY),
+    )
+}
+
+/// Surface albedo at road coordinates (x = offset, z = along) of a road of [`profile`]: a
+/// single lane, asphalt with solid edge lines at |x| in [1.75, 1.9], asphalt to
+/// [`profile::ASPHALT`], a kerb strip to [`profile::KERB_OUTER`], grass beyond; the textures of
+/// [`road_albedo`].
+fn laid_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
+    let ax = x.abs();
+    let [asphalt, kerb, grass, paint] = surfaces(x, z, along);
+    let [e0, e1] = profile::EDGE_LINE;
+    let c = lerp3(asphalt, paint, band_coverage(ax, across, e0, e1));
+    let c = lerp3(
+        c,
+        kerb,
+        band_coverage(ax, across, profile::ASPHALT, profile::KERB_OUTER),
+    );
+    lerp3(
+        c,
+        grass,
+        band_coverage(ax, across, profile::KERB_OUTER, f64::INFINITY),
+    )
+}
+
+/// The textures of the ground at (x, z): asphalt, kerb, grass and paint.
+#[inline]
+fn surfaces(x: f64, z: f64, along: f64) -> [[f64; 3]; 4] {
     // Fine-grained (persistence 0.8: the 2.5 cm octave still counts) so that the near road has
     // the moderate texture real asphalt has, fading to smooth grey with distance.
     let n = fbm(SEED_ASPHALT, x, z, 0.8, 6, 0.8, along);
@@ -134,21 +177,7 @@ fn road_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
         [228.0, 228.0, 222.0],
         0.92 + 0.16 * value_noise(SEED_PAINT, x * 5.0, z * 5.0),
     );
-    let mut c = asphalt;
-    let dash = band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06)
-        * periodic_coverage(z, along, 9.0, 0.0, 3.0);
-    let edge = band_coverage(ax, across, 4.75, 4.9);
-    c = lerp3(c, paint, (dash + edge).min(1.0));
-    c = lerp3(
-        c,
-        kerb,
-        band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH),
-    );
-    lerp3(
-        c,
-        grass,
-        band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY),
-    )
+    [asphalt, kerb, grass, paint]
 }
 
 /// Sky colour for a direction: a smooth gradient from a pale horizon to a blue zenith with a
@@ -166,24 +195,30 @@ fn sky(dir: [f64; 3]) -> [f64; 3] {
 /// ground, so it comes towards the cameras).
 /// The road under a ray in the frame it is traced in.
 #[derive(Debug, Clone, Copy)]
-enum Road {
+enum Ground {
     /// Straight, the vehicle `travelled` metres down it (its texture comes towards it).
     Straight { travelled: f64 },
     /// Of constant curvature ([`bend`]), in the road frame.
     Bend { curvature: f64 },
+    /// Of a curvature profile ([`profile`]), in the road frame.
+    Profile(&'static profile::Road),
 }
 
-fn ground_or_sky(ray: &Ray, road: Road, eye: [f64; 3]) -> Sample {
+fn ground_or_sky(ray: &Ray, road: Ground, eye: [f64; 3]) -> Sample {
     let (o, d) = (ray.origin, ray.dir);
     if d[1] < 0.0 && o[1] > 0.0 {
         let t = -o[1] / d[1];
         let p = ray.at(t);
         let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0], eye);
         let albedo = match road {
-            Road::Straight { travelled } => road_albedo(p[0], p[2] + travelled, across, along),
-            Road::Bend { curvature } => {
+            Ground::Straight { travelled } => road_albedo(p[0], p[2] + travelled, across, along),
+            Ground::Bend { curvature } => {
                 let (on, offset) = bend::locate(curvature, p[0], p[2]);
                 road_albedo(offset, on, across, along)
+            }
+            Ground::Profile(road) => {
+                let (on, offset) = road.locate(p[0], p[2]);
+                laid_albedo(offset, on, across, along)
             }
         };
         return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
@@ -209,7 +244,7 @@ pub(crate) fn trace(
         ray,
         props,
         obstacles,
-        Road::Straight { travelled },
+        Ground::Straight { travelled },
         NOMINAL_EYE,
     )
 }
@@ -219,7 +254,7 @@ fn trace_from(
     ray: &Ray,
     props: &[Obstacle],
     obstacles: &[Obstacle],
-    road: Road,
+    road: Ground,
     eye: [f64; 3],
 ) -> Sample {
     let mut best = ground_or_sky(ray, road, eye);
@@ -247,10 +282,12 @@ pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample
         return trace(ray, props, &[], scene.travelled);
     }
     let world = scene.world_ray(ray);
-    let road = if scene.bend == 0.0 {
-        Road::Straight { travelled: 0.0 }
+    let road = if let Some(road) = scene.road {
+        Ground::Profile(road)
+    } else if scene.bend == 0.0 {
+        Ground::Straight { travelled: 0.0 }
     } else {
-        Road::Bend {
+        Ground::Bend {
             curvature: scene.bend,
         }
     };
@@ -388,8 +425,13 @@ pub struct Scene {
     /// where the bend starts ([`Scene::on_bend`]), and the roadside is laid along it.
     pub bend: f64,
     /// Obstacles fixed to the road (its frame, as the roadside): traced with the static world,
-    /// e.g. a car parked on a bend ([`Obstacle::Bent`]).
+    /// e.g. a car parked on a bend ([`Obstacle::Bent`]) or stopped on a road of a profile
+    /// ([`Obstacle::Laid`]).
     pub fixed: Vec<Obstacle>,
+    /// A road of changing curvature ([`profile`]; `bend` is then 0): (`lateral`, `travelled`)
+    /// and `heading` are the vehicle's pose in the road's frame ([`Scene::on_road`]), and the
+    /// roadside, a guard rail and delineator posts are laid along it.
+    pub road: Option<&'static profile::Road>,
 }
 
 impl Scene {
@@ -443,6 +485,32 @@ impl Scene {
             heading: bend::heading(bend, along),
             bend,
             fixed,
+            road: None,
+        }
+    }
+
+    /// The vehicle on `road`, `along` metres down it and `offset` metres right of its centre
+    /// line, heading along it; with `fixed` (road frame) and `obstacles` (vehicle frame). A
+    /// road of one constant segment is the bend of [`Scene::on_bend`] (the same scene).
+    pub fn on_road(
+        road: &'static profile::Road,
+        along: f64,
+        offset: f64,
+        fixed: Vec<Obstacle>,
+        obstacles: Vec<Obstacle>,
+    ) -> Self {
+        if let Some(k) = road.constant() {
+            return Self::on_bend(k, along, offset, fixed, obstacles);
+        }
+        let (x, z) = road.point(along, offset);
+        Self {
+            obstacles,
+            travelled: z,
+            lateral: x,
+            heading: road.heading(along),
+            bend: 0.0,
+            fixed,
+            road: Some(road),
         }
     }
 
@@ -450,7 +518,11 @@ impl Scene {
     /// in the road's frame ([`Scene::world_ray`]); otherwise it comes towards the vehicle as
     /// [`roadside_at`] (bit for bit the renders of a straight drive).
     pub fn is_posed(&self) -> bool {
-        self.heading != 0.0 || self.lateral != 0.0 || self.bend != 0.0 || !self.fixed.is_empty()
+        self.heading != 0.0
+            || self.lateral != 0.0
+            || self.bend != 0.0
+            || !self.fixed.is_empty()
+            || self.road.is_some()
     }
 
     /// The roadside in the frame its rays are traced in: the road's for a posed vehicle, the
@@ -459,7 +531,9 @@ impl Scene {
         if !self.is_posed() {
             return roadside_at(self.travelled);
         }
-        let mut props = if self.bend == 0.0 {
+        let mut props = if let Some(road) = self.road {
+            road.props()
+        } else if self.bend == 0.0 {
             roadside()
         } else {
             bend::bent(self.bend, &roadside())

@@ -1,5 +1,6 @@
-//! What stands in the world: obstacles (boxes, cylinders, bent boxes along a bend), their
-//! materials and patterns, and the ray intersections the renderer traces them with.
+//! What stands in the world: obstacles (boxes, cylinders, bent boxes along a bend, boxes laid
+//! along a road of changing curvature), their materials and patterns, and the ray
+//! intersections the renderer traces them with.
 
 use super::*;
 
@@ -19,6 +20,8 @@ pub enum Pattern {
     Bricks,
     /// A building facade in the material colour with a grid of windows.
     Facade,
+    /// A delineator post in the material colour with a dark band below its top.
+    Post,
 }
 
 /// Surface colour and pattern. `seed` varies the noise between otherwise equal objects.
@@ -68,6 +71,17 @@ pub enum Obstacle {
         curvature: f64,
         min: [f64; 3],
         max: [f64; 3],
+        material: Material,
+    },
+    /// A box laid along a [`profile::Road`] as [`Obstacle::Bent`] is along a bend (road
+    /// coordinates `min..max`, the road's frame), drawn only between `part[0]` and `part[1]`
+    /// along: a long box is cut into pieces the renderer culls apart
+    /// ([`profile::Road::lay`]); texture coordinates and end faces are the whole box's.
+    Laid {
+        road: &'static profile::Road,
+        min: [f64; 3],
+        max: [f64; 3],
+        part: [f64; 2],
         material: Material,
     },
 }
@@ -163,6 +177,13 @@ impl Obstacle {
                 max,
                 ..
             } => bend::is_valid(curvature, min, max),
+            Obstacle::Laid {
+                road,
+                min,
+                max,
+                part,
+                ..
+            } => profile::is_valid(road, min, max, part),
         }
     }
 
@@ -177,6 +198,12 @@ impl Obstacle {
             Obstacle::Bent { min, max, .. } => {
                 min[2] += dz;
                 max[2] += dz;
+            }
+            Obstacle::Laid { min, max, part, .. } => {
+                min[2] += dz;
+                max[2] += dz;
+                part[0] += dz;
+                part[1] += dz;
             }
         }
     }
@@ -197,6 +224,16 @@ impl Obstacle {
                 let (_, (lo, hi)) = bend::bounds(curvature, min, max);
                 (lo[0], hi[0], lo[2], hi[2])
             }
+            Obstacle::Laid {
+                road,
+                min,
+                max,
+                part,
+                ..
+            } => {
+                let (_, (lo, hi)) = profile::bounds(road, min, max, part);
+                (lo[0], hi[0], lo[2], hi[2])
+            }
         }
     }
 
@@ -204,7 +241,8 @@ impl Obstacle {
         match self {
             Obstacle::Box { material, .. }
             | Obstacle::Cylinder { material, .. }
-            | Obstacle::Bent { material, .. } => material,
+            | Obstacle::Bent { material, .. }
+            | Obstacle::Laid { material, .. } => material,
         }
     }
 
@@ -238,6 +276,13 @@ impl Obstacle {
                 max,
                 ..
             } => bend::bounds(curvature, min, max).0,
+            Obstacle::Laid {
+                road,
+                min,
+                max,
+                part,
+                ..
+            } => profile::bounds(road, min, max, part).0,
         })
     }
 
@@ -264,6 +309,13 @@ impl Obstacle {
                 max,
                 ..
             } => bend::bounds(curvature, min, max).1,
+            Obstacle::Laid {
+                road,
+                min,
+                max,
+                part,
+                ..
+            } => profile::bounds(road, min, max, part).1,
         })
     }
 
@@ -295,6 +347,13 @@ impl Obstacle {
                 max,
                 ..
             } => bend::intersect(ray, curvature, min, max),
+            Obstacle::Laid {
+                road,
+                min,
+                max,
+                part,
+                ..
+            } => profile::intersect(ray, road, min, max, part),
         }
     }
 

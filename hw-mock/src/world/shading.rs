@@ -50,8 +50,20 @@ impl Material {
             Pattern::Car => car(base, hit, seed, fp),
             Pattern::Bricks => bricks(base, s, h, seed, fp),
             Pattern::Facade => facade(base, s, h, seed, fp),
+            Pattern::Post => post(base, hit, seed, fp),
         }
     }
+}
+
+/// A delineator post: its colour with a little grain, a dark band from 0.7 to 0.88 m up
+/// on its sides (a post is 1 m tall), its top plain.
+fn post(body: [f64; 3], hit: &Hit, seed: u64, fp: f64) -> [f64; 3] {
+    const BAND: [f64; 3] = [32.0, 32.0, 36.0];
+    let body = scale3(body, grain(seed, hit.s, hit.h, 0.05, 0.08, fp));
+    if hit.face == Face::Horizontal {
+        return body;
+    }
+    lerp3(body, BAND, band_coverage(hit.h, fp, 0.7, 0.88))
 }
 
 /// Blends layers painted over each other: `weights[k]` is the (box-filtered) coverage of layer

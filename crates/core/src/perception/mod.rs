@@ -19,7 +19,7 @@ pub mod track;
 use serde::{Deserialize, Serialize};
 
 pub use obstacle::{
-    CorridorCounts, Obstacle, ObstacleConfig, ObstacleFinder, PerceptionParamError,
+    CorridorCounts, Obstacle, ObstacleConfig, ObstacleFinder, PathKind, PerceptionParamError,
 };
 pub use range::{Resolution, SearchReach};
 pub use road::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
@@ -372,6 +372,12 @@ impl Perception {
     /// `obstacle.follow_path` off).
     pub fn path_estimate(&self) -> Option<PathEstimate> {
         self.followed
+    }
+
+    /// The left-image pixels and depths of the latest estimate's unique corridor flies
+    /// ([`ObstacleFinder::unique_pixels`]).
+    pub fn corridor_pixels(&self) -> impl Iterator<Item = (f32, f32, f32)> + '_ {
+        self.finder.unique_pixels()
     }
 
     /// The nearest distance an obstacle is judged from one sighting, metres

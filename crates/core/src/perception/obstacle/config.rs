@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 #[serde(rename_all = "kebab-case")]
 pub enum PathKind {
     Clothoid,
+    ClothoidGated,
     Held,
 }
 
@@ -96,6 +97,9 @@ impl ObstacleConfig {
             PathKind::Clothoid => crate::path::PathModel::Clothoid {
                 window: self.path_rate_window_s,
             },
+            PathKind::ClothoidGated => crate::path::PathModel::ClothoidGated {
+                window: self.path_rate_window_s,
+            },
             PathKind::Held => crate::path::PathModel::Held {
                 hold: self.path_hold_s,
             },
@@ -109,7 +113,7 @@ impl Default for ObstacleConfig {
             corridor_half_width: 1.2,
             follow_path: true,
             path_hold_s: 2.0,
-            path_model: PathKind::Held,
+            path_model: PathKind::ClothoidGated,
             path_rate_window_s: 0.3,
             fault_yaw_rate: 0.15,
             min_height: 0.3,
