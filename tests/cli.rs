@@ -451,9 +451,15 @@ fn values_that_disable_safety_are_refused() {
         ),
         (
             "[decision]",
-            "[decision]\nslow_decel = 9\nstop_decel = 9.5\nmargin_m = 1e9",
+            "[decision]\nslow_decel = 9\nstop_decel = 9.5\nmax_decel = 10\nmargin_m = 1e9",
             "decision.margin_m",
             "0..=20",
+        ),
+        (
+            "[decision]",
+            "[decision]\nmax_decel = 3",
+            "decision.max_decel",
+            "at least stop_decel",
         ),
         (
             "[evolution]",

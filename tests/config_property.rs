@@ -31,6 +31,7 @@ const KEYS: &[(&str, &str, f64)] = &[
     ("decision", "stop_hold_ms", 1000.0),
     ("decision", "slow_decel", 1.5),
     ("decision", "stop_decel", 4.0),
+    ("decision", "max_decel", 9.0),
     ("decision", "reaction_time_ms", 500.0),
     ("decision", "margin_m", 2.0),
     ("vehicle", "assumed_speed_kmh", 30.0),

@@ -67,6 +67,7 @@ struct RawDecision {
     safe_command: SafeCommand,
     slow_decel: f64,
     stop_decel: f64,
+    max_decel: f64,
     reaction_time_ms: f64,
     margin_m: f64,
 }
@@ -154,6 +155,7 @@ impl Default for RawDecision {
             safe_command: SafeCommand::Slow,
             slow_decel: d.slow_decel,
             stop_decel: d.stop_decel,
+            max_decel: d.max_decel,
             reaction_time_ms: d.reaction_time.as_secs_f64() * 1e3,
             margin_m: d.margin,
         }
@@ -369,6 +371,7 @@ impl RawDecision {
             fault_mask: FaultBits::all(),
             slow_decel: self.slow_decel,
             stop_decel: self.stop_decel,
+            max_decel: self.max_decel,
         };
         match config.validate() {
             Ok(()) => Ok(config),
@@ -392,6 +395,7 @@ impl RawDecision {
                     DecisionConfigError::UnsafeFallback => "decision.safe_command",
                     DecisionConfigError::DecelOrder { .. } => "decision.slow_decel",
                     DecisionConfigError::Margin(_) => "decision.margin_m",
+                    DecisionConfigError::MaxDecel { .. } => "decision.max_decel",
                     DecisionConfigError::OutOfRange { key, .. } => {
                         return bad(&format!("decision.{key}"), e.to_string());
                     }

@@ -14,7 +14,9 @@
 //!   ([`DecisionInput::latency`]): a STOP decided on the next frame would come a frame's
 //!   travel too late. The level is STOP if `d' <= reach(STOP)`, SLOW if `d' <= reach(SLOW)`,
 //!   else CLEAR; no obstacle is CLEAR. At 30 km/h with the defaults (0.5 s, 2 m, 4 and 1.5 m/s^2):
-//!   STOP within 14.9 m, SLOW within 29.3 m.
+//!   STOP within 14.9 m, SLOW within 29.3 m. SLOW requests `slow_decel`; STOP `stop_decel`, or
+//!   when the obstacle is already nearer what the distance left needs, up to `max_decel`
+//!   ([`DecisionConfig::max_decel`]).
 //! - **`global-warning`**: the paper's rule. `w` the global warning (the mean fly warning),
 //!   STOP if `w >= stop_threshold`, SLOW if `w >= slow_threshold`. Its scale follows the images'
 //!   gradients and textures: thresholds written in it carry over from no camera or scene to
@@ -111,6 +113,11 @@ pub struct DecisionConfig {
     pub slow_decel: f64,
     /// Requested deceleration for STOP, m/s².
     pub stop_decel: f64,
+    /// The most a STOP requests, m/s²: a STOP decided with the obstacle already nearer than
+    /// the STOP distance (confirmed late, or on the corridor only once the vehicle's paths
+    /// agree) requests what the distance left needs, `v^2 / (2 (d - v (latency +
+    /// reaction_time) - margin))`, between `stop_decel` and this.
+    pub max_decel: f64,
     /// `obstacle` mode: time from the obstacle's evidence to the brakes acting, s.
     pub reaction_time: Duration,
     /// `obstacle` mode: distance kept to the obstacle once stopped, m.
@@ -130,6 +137,7 @@ impl Default for DecisionConfig {
             fault_mask: FaultBits::all(),
             slow_decel: 1.5,
             stop_decel: 4.0,
+            max_decel: 9.0,
             reaction_time: Duration::from_millis(500),
             margin: 2.0,
         }
@@ -151,6 +159,8 @@ pub enum DecisionConfigError {
     Decel { command: Command, value: f64 },
     #[error("the stopping distance needs SLOW's deceleration ({slow}) <= STOP's ({stop})")]
     DecelOrder { slow: f64, stop: f64 },
+    #[error("max_decel ({max}) must be at least stop_decel ({stop})")]
+    MaxDecel { stop: f64, max: f64 },
     #[error("margin must be finite and >= 0, got {0}")]
     Margin(f64),
     /// A value beyond what a vehicle can mean (the bounds are the variant's `range`).
@@ -191,6 +201,12 @@ impl DecisionConfig {
                 stop: self.stop_decel,
             });
         }
+        if !(self.max_decel.is_finite() && self.max_decel >= self.stop_decel) {
+            return Err(DecisionConfigError::MaxDecel {
+                stop: self.stop_decel,
+                max: self.max_decel,
+            });
+        }
         if !(self.margin.is_finite() && self.margin >= 0.0) {
             return Err(DecisionConfigError::Margin(self.margin));
         }
@@ -198,10 +214,11 @@ impl DecisionConfig {
         // saturates at 65.534), decelerations a car brakes with (1 g is ~9.8 m/s^2), reaction
         // times and margins of metres and seconds, holds under a minute.
         let secs = |d: Duration| d.as_secs_f64();
-        let checks: [(&'static str, f64, f64, f64, &'static str); 7] = [
+        let checks: [(&'static str, f64, f64, f64, &'static str); 8] = [
             ("stop_threshold", stop, 0.0, 65.0, "(0, 65]"),
             ("slow_decel", self.slow_decel, 0.5, 10.0, "0.5..=10 m/s^2"),
             ("stop_decel", self.stop_decel, 1.0, 10.0, "1..=10 m/s^2"),
+            ("max_decel", self.max_decel, 1.0, 10.0, "1..=10 m/s^2"),
             (
                 "reaction_time_ms",
                 secs(self.reaction_time) * 1e3,
@@ -358,6 +375,9 @@ pub struct Decider {
     below_slow_release_since: Option<Duration>,
     /// Since when (healthy snapshots only) STOP's ratio is below the release ratio.
     below_stop_release_since: Option<Duration>,
+    /// The deceleration the latest trusted evidence needs to stop before its obstacle, m/s²
+    /// (0: none; infinite: no room left).
+    needed: f64,
     shut_down: bool,
 }
 
@@ -370,6 +390,7 @@ impl Decider {
             reason: CommandReason::FaultFallback,
             below_slow_release_since: None,
             below_stop_release_since: None,
+            needed: 0.0,
             shut_down: false,
         })
     }
@@ -401,6 +422,7 @@ impl Decider {
         let fault = ratios.is_none() || input.faults.intersects(cfg.fault_mask);
         let level = ratios.map_or(Command::Clear, level);
 
+        self.needed = if fault { 0.0 } else { self.needed_by(&input) };
         if let (false, Some(r)) = (fault, ratios) {
             Self::track(
                 &mut self.below_stop_release_since,
@@ -511,11 +533,43 @@ impl Decider {
         since.is_some_and(|t| now.saturating_sub(t) >= hold)
     }
 
+    /// `obstacle` mode: the deceleration that stops the vehicle `margin` before the obstacle
+    /// of `input`, after its latency and the reaction time (0 without one or standing still;
+    /// infinite when that leaves no room).
+    fn needed_by(&self, input: &DecisionInput) -> f64 {
+        let c = &self.config;
+        let (v, latency) = (input.speed, input.latency);
+        match (c.mode, input.obstacle) {
+            (DecisionMode::Obstacle, Some(d))
+                if d.is_finite() && v.is_finite() && v > 0.0 && latency.is_finite() =>
+            {
+                let room = d - v * (latency.max(0.0) + c.reaction_time.as_secs_f64()) - c.margin;
+                if room > 0.0 {
+                    v * v / (2.0 * room)
+                } else {
+                    f64::INFINITY
+                }
+            }
+            _ => 0.0,
+        }
+    }
+
     fn decision(&self, previous: Command, fault: bool) -> Decision {
+        let c = &self.config;
+        // A STOP on the evidence asks for what its distance needs, at least `stop_decel`.
+        let requested_decel = if self.command == Command::Stop
+            && self.reason == CommandReason::Perception
+            && !self.shut_down
+        {
+            self.needed
+                .clamp(c.stop_decel, c.max_decel.max(c.stop_decel))
+        } else {
+            c.decel_for(self.command)
+        };
         Decision {
             command: self.command,
             reason: self.reason,
-            requested_decel: self.config.decel_for(self.command),
+            requested_decel,
             changed: self.command != previous,
             previous,
             fault,
@@ -1109,6 +1163,51 @@ mod tests {
             commands,
             [Clear, Slow, Stop, Stop, Stop, Stop, Slow, Slow, Clear]
         );
+    }
+
+    #[test]
+    fn a_late_stop_asks_for_what_the_distance_left_needs() {
+        let c = DecisionConfig::default();
+        let stop = |distance: f64| {
+            let mut d = Decider::new(c).expect("valid");
+            d.update(DecisionInput::at_speed(None, KMH30), Duration::ZERO);
+            d.update(
+                DecisionInput::at_speed(Some(distance), KMH30),
+                Duration::from_millis(700),
+            )
+        };
+        // At the STOP distance (14.85 m at 30 km/h): stop_decel.
+        let in_time = stop(14.8);
+        assert_eq!(in_time.command, Stop);
+        assert!((in_time.requested_decel - 4.0).abs() < 0.05, "{in_time:?}");
+        // 11 m: 8.33^2 / (2 (11 - 8.33 * 0.5 - 2)) = 7.18 m/s^2.
+        let late = stop(11.0);
+        assert!((late.requested_decel - 7.18).abs() < 0.01, "{late:?}");
+        // No room left: the most it asks for.
+        assert_eq!(stop(5.0).requested_decel, c.max_decel);
+        // A fault's STOP asks for stop_decel, whatever the distance.
+        let mut d = Decider::new(DecisionConfig {
+            safe_command: Stop,
+            ..c
+        })
+        .expect("valid");
+        let fault = d.update(
+            DecisionInput {
+                faults: STALE,
+                ..DecisionInput::at_speed(Some(5.0), KMH30)
+            },
+            Duration::ZERO,
+        );
+        assert_eq!((fault.command, fault.requested_decel), (Stop, 4.0));
+        // max_decel below stop_decel is refused.
+        assert!(matches!(
+            DecisionConfig {
+                max_decel: 3.0,
+                ..c
+            }
+            .validate(),
+            Err(DecisionConfigError::MaxDecel { .. })
+        ));
     }
 
     #[test]

@@ -450,7 +450,8 @@ mod tests {
                 msg.global_warning,
                 msg.reason
             ),
-            (Command::Stop, 4.0, 9.0, CommandReason::Perception)
+            // 3 m ahead at 30 km/h leaves no room: the most a STOP asks for.
+            (Command::Stop, 9.0, 9.0, CommandReason::Perception)
         );
     }
     use crate::can::crc::crc8_j1850;
