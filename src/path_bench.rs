@@ -7,7 +7,8 @@
 //! decision stage's distance for that speed (STOP and SLOW: the decider's
 //! `v reaction_time + v^2 / (2 decel) + margin`; a time to collision of 1 s for reference),
 //! the bench takes where the car really was that far along its real trajectory, and asks
-//! the corridor ([`PathEstimate::locate_in`], what the obstacle stage asks of a fly):
+//! the corridor ([`flyd_core::path::PathEstimate::locate_in`], what the obstacle stage asks of
+//! a fly):
 //!
 //! - **on path**: is an object on the real path there inside the corridor? (It should be:
 //!   the vehicle drove into that point.)
