@@ -381,9 +381,10 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         let chosen = period.choose(|| None);
         let decision = (chosen.from != InputSource::Untrusted)
             .then(|| decider.update(chosen.with_faults(faults), time));
+        // The first SLOW and the first STOP on the evidence (a SLOW may continue the start-up's
+        // safe command: its reason changes, not the command).
         if let Some(d) = decision
-            && d.changed
-            && d.command > d.previous
+            && d.command > Command::Clear
             && d.reason == CommandReason::Perception
             && alarm.as_ref().is_none_or(|a| d.command > a.command)
         {

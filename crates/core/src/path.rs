@@ -389,12 +389,35 @@ impl PathEstimator {
         if self.covered < window * (1.0 - 1e-9) && self.len < HELD_SAMPLES {
             return 0.0;
         }
-        // Each sample's curvature at the distance travelled since the oldest one.
+        // A steady change shows in both halves of the window; a step (a bend of constant
+        // curvature entered without a transition, a glitch of the yaw rate) in one only. The
+        // smaller of the two halves' rates, 0 when they disagree in sign.
+        let half = self.len / 2;
+        if half < 1 {
+            return 0.0;
+        }
+        let first = self.fit(0, half + 1);
+        let second = self.fit(half, self.len);
+        match (first, second) {
+            (Some(a), Some(b)) if a * b > 0.0 => {
+                if a.abs() < b.abs() {
+                    a
+                } else {
+                    b
+                }
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The least-squares rate of the kept samples `from..to` (their curvature against the
+    /// distance travelled), `None` over less than a quarter of a metre.
+    fn fit(&self, from: usize, to: usize) -> Option<f64> {
         let (mut n, mut sum_s, mut sum_k, mut sum_ss, mut sum_sk) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let mut s = 0.0;
-        for i in 0..self.len {
+        for i in from..to {
             let (_, k, ds) = self.samples[(self.head + i) % HELD_SAMPLES];
-            if i > 0 {
+            if i > from {
                 s += ds;
             }
             n += 1.0;
@@ -404,11 +427,11 @@ impl PathEstimator {
             sum_sk += s * k;
         }
         let var = n * sum_ss - sum_s * sum_s;
-        if s < 0.5 || var <= 0.0 {
-            return 0.0;
+        if s < 0.25 || var <= 0.0 {
+            return None;
         }
         let rate = (n * sum_sk - sum_s * sum_k) / var;
-        if rate.is_finite() { rate } else { 0.0 }
+        rate.is_finite().then_some(rate)
     }
 
     /// The held path, `now` being the motion's.
@@ -766,5 +789,23 @@ mod tests {
             last.locate_in(right.0 as f32, right.1 as f32, 1.2)
                 .is_some()
         );
+    }
+
+    #[test]
+    fn a_step_in_the_curvature_is_no_clothoid() {
+        // A bend of constant curvature entered without a transition (hw-mock's bends): the
+        // window sees a step, not a steady change; the path is the arc, never a spiral.
+        let mut e = PathEstimator::with_model(PathModel::ClothoidGated { window: 0.3 });
+        for i in 0..60 {
+            let yaw_rate = if i < 30 { 0.0 } else { 0.139 };
+            let p = e.update(
+                VehicleMotion {
+                    speed: 8.33,
+                    yaw_rate,
+                },
+                1.0 / 30.0,
+            );
+            assert!(p.held.rate.abs() < 1e-9, "sample {i}: {p:?}");
+        }
     }
 }
