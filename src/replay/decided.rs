@@ -85,7 +85,7 @@ impl Decided {
         let mut img = self.left.clone();
         let path = self.centre();
         let far = self.search_far.clamp(1.0, 200.0);
-        let project = |along: f64, offset: f64| {
+        let project = |path: PredictedPath, along: f64, offset: f64| {
             let (x, z) = path.point_at(along, offset);
             let y = self.road.road_y(x, z);
             self.rig
@@ -93,11 +93,11 @@ impl Decided {
                 .pixel_from_vehicle(&Point3::new(x, y, z))
                 .map(|p| (p.x, p.y))
         };
-        let polyline = |img: &mut RgbImage, offset: f64, colour: Rgb<u8>| {
+        let polyline = |img: &mut RgbImage, path: PredictedPath, offset: f64, colour: Rgb<u8>| {
             let mut last = None;
             let mut s = 1.0;
             while s <= far {
-                let p = project(s, offset);
+                let p = project(path, s, offset);
                 if let (Some(a), Some(b)) = (last, p) {
                     line(img, a, b, colour);
                 }
@@ -108,26 +108,12 @@ impl Decided {
         // The arc of the moment, where the corridor must also hold a fly (magenta), when it
         // is not the centre line.
         if let Some(now) = self.path.map(|p| p.now).filter(|n| *n != path) {
-            let mut last = None;
-            let mut s = 1.0;
-            while s <= far {
-                let (x, z) = now.point(s);
-                let p = self
-                    .rig
-                    .left
-                    .pixel_from_vehicle(&Point3::new(x, self.road.road_y(x, z), z))
-                    .map(|p| (p.x, p.y));
-                if let (Some(a), Some(b)) = (last, p) {
-                    line(&mut img, a, b, Rgb([255, 0, 255]));
-                }
-                last = p;
-                s += 0.5;
-            }
+            polyline(&mut img, now, 0.0, Rgb([255, 0, 255]));
         }
         let yellow = Rgb([255, 220, 0]);
-        polyline(&mut img, -self.half_width, yellow);
-        polyline(&mut img, self.half_width, yellow);
-        polyline(&mut img, 0.0, Rgb([0, 220, 255]));
+        polyline(&mut img, path, -self.half_width, yellow);
+        polyline(&mut img, path, self.half_width, yellow);
+        polyline(&mut img, path, 0.0, Rgb([0, 220, 255]));
         let near = self.obstacle.map(|o| o.distance);
         for &(u, v, z) in &self.flies {
             let at_obstacle = near.is_some_and(|d| (f64::from(z) - d).abs() <= 1.0 + 0.05 * d);
@@ -140,8 +126,8 @@ impl Decided {
         }
         if let Some(o) = self.obstacle {
             let (a, b) = (
-                project(o.distance, -self.half_width),
-                project(o.distance, self.half_width),
+                project(path, o.distance, -self.half_width),
+                project(path, o.distance, self.half_width),
             );
             if let (Some(a), Some(b)) = (a, b) {
                 for dy in -1..=1 {
