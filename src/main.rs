@@ -579,7 +579,8 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
         CanTarget::Log { path, .. } if path == Path::new("-") => LogTarget::Stderr,
         _ => LogTarget::Stdout,
     };
-    logging::init(config.logging.format, config.logging.level, log_target);
+    let log_output = logging::init(config.logging.format, config.logging.level, log_target);
+    tracing::debug!(output = ?log_output, "logging");
 
     let shutdown = Shutdown::new();
     // SIGHUP ends flyd as SIGTERM does (a safe command and a SHUTDOWN status first); there is
@@ -622,6 +623,8 @@ fn cmd_run(args: &RunArgs) -> anyhow::Result<()> {
         &config,
         shutdown,
     )?;
+    // Counts of messages held back by the rate limit go out with the last line.
+    logging::request_flush();
     tracing::info!(
         ended_by = ?report.ended_by,
         generations = report.generations,

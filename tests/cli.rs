@@ -631,3 +631,98 @@ fn v4l2_settings_run_would_refuse_are_refused_by_check_config() {
         );
     }
 }
+
+/// Runs the demo for 1 s with `[logging] format` set and stdout on a pipe, with
+/// `$JOURNAL_STREAM` set to that pipe's device:inode (`matching`) or to another file's; returns
+/// stdout.
+fn demo_logs_with_journal_stream(format: &str, matching: bool) -> String {
+    use std::io::Read;
+    use std::os::fd::AsFd;
+    use std::os::unix::fs::MetadataExt;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
+    let config = dir.path().join("c.toml");
+    let text = text.replacen("format = \"auto\"", &format!("format = \"{format}\""), 1);
+    assert!(text.contains(&format!("format = \"{format}\"")));
+    std::fs::write(&config, text).expect("write");
+    let (mut reader, writer) = std::io::pipe().expect("pipe");
+    let meta = std::fs::File::from(writer.as_fd().try_clone_to_owned().expect("dup"))
+        .metadata()
+        .expect("fstat");
+    let stream = if matching {
+        format!("{}:{}", meta.dev(), meta.ino())
+    } else {
+        format!("{}:{}", meta.dev(), meta.ino() + 1)
+    };
+    let mut child = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["run", "--config", &config.display().to_string()])
+        .args(["--can-log", "/dev/null", "--duration", "1"])
+        .env("JOURNAL_STREAM", stream)
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("flyd runs");
+    let mut out = String::new();
+    reader.read_to_string(&mut out).expect("read");
+    let mut err = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = e.read_to_string(&mut err);
+    }
+    assert!(child.wait().expect("wait").success(), "{out}\n{err}");
+    out
+}
+
+/// Under systemd flyd logs natively to the journal when its stdout is the stream systemd
+/// named in `$JOURNAL_STREAM` (the VM suite's systemd scenario checks the entries with
+/// journalctl). Here, where no journald listens, it finds its stream, then falls back to JSON
+/// lines on stdout and says so once; with another stream named, it writes JSON lines as before.
+#[test]
+fn the_journal_stream_is_recognised_and_a_missing_journal_is_said_once() {
+    let socket = Path::new("/run/systemd/journal/socket");
+    if socket.exists() {
+        println!(
+            "note: {} exists: the fallback is not exercised here",
+            socket.display()
+        );
+    }
+    let json_lines = |out: &str| {
+        out.lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("a JSON line"))
+            .collect::<Vec<_>>()
+    };
+    let unavailable = |lines: &[serde_json::Value]| {
+        lines
+            .iter()
+            .filter(|v| {
+                v["message"]
+                    .as_str()
+                    .is_some_and(|m| m.starts_with("journal socket unavailable"))
+            })
+            .count()
+    };
+    // Another stream named: JSON lines, no word of the journal.
+    let other = json_lines(&demo_logs_with_journal_stream("auto", false));
+    assert!(other.iter().any(|v| v["message"] == "flyd starting"));
+    assert_eq!(unavailable(&other), 0);
+    for format in ["auto", "journal"] {
+        let out = demo_logs_with_journal_stream(format, true);
+        if socket.exists() {
+            // Entries went to the journal, not to stdout.
+            assert!(!out.contains("flyd starting"), "{out}");
+            continue;
+        }
+        let lines = json_lines(&out);
+        assert_eq!(unavailable(&lines), 1, "said once ({format}):\n{out}");
+        let said = lines
+            .iter()
+            .find(|v| {
+                v["message"]
+                    .as_str()
+                    .is_some_and(|m| m.starts_with("journal socket"))
+            })
+            .expect("the notice");
+        assert_eq!(said["level"], "WARN");
+        assert_eq!(said["socket"], socket.display().to_string());
+        assert!(lines.iter().any(|v| v["message"] == "flyd starting"));
+    }
+}

@@ -45,6 +45,7 @@ fn run(faults: &[MockFault]) -> Vec<(f64, Frame)> {
     config.cameras.source = CameraSource::Mock {
         scenario: "pedestrian-4m".into(),
         faults: faults.to_vec(),
+        looped: false,
     };
     let clock = MonotonicClock::shared();
     let bus_clock = clock.clone();

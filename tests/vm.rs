@@ -1540,7 +1540,15 @@ fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_
     if let Some(dropin) = std::env::var_os("FLYD_VM_SYSTEMD_DROPIN") {
         scenario = scenario.input(dropin);
     }
-    let r = run_flyd(scenario);
+    let mut r = run_flyd(scenario);
+    // flyd logs natively to the journal under systemd: its events, as its JSON lines would
+    // hold them, from the journal's fields.
+    let journal = journal_entries(&r, "journal.json");
+    r.log = journal
+        .iter()
+        .filter(|e| is_flyd(e))
+        .map(as_log_event)
+        .collect();
 
     // Installed: the unit loaded from the package, neither enabled nor started.
     let installed = r.run.result("installed");
@@ -1630,12 +1638,6 @@ fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_
         watchdog["nrestarts"].parse().unwrap(),
     );
     assert!(n1 > n0, "NRestarts {n0} -> {n1}");
-    let journal: Vec<serde_json::Value> = r
-        .run
-        .read_to_string("journal.json")
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("journalctl -o json line"))
-        .collect();
     let message = |e: &serde_json::Value| e["MESSAGE"].as_str().unwrap_or_default().to_string();
     assert!(
         journal.iter().any(|e| e["SYSLOG_IDENTIFIER"] == "systemd"
@@ -1661,38 +1663,162 @@ fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_
         .count();
     assert!(resumed > 20, "{resumed} commands after the restart");
 
-    // The journal holds flyd's own JSON events, from each of its processes: level, message,
-    // its structured values.
-    let flyd_entries: Vec<(String, serde_json::Value)> = journal
+    // The journal holds flyd's own entries, from each of its processes, natively: priority
+    // from the level, the named thread, the target, every field a FLYD_* field.
+    let flyd_entries: Vec<(String, &serde_json::Value)> = journal
         .iter()
-        .filter(|e| e["_SYSTEMD_UNIT"] == "flyd.service" && e["SYSLOG_IDENTIFIER"] == "flyd")
-        .map(|e| {
-            let m = message(e);
-            let v = serde_json::from_str(&m)
-                .unwrap_or_else(|err| panic!("flyd journal entry not JSON ({err}): {m}"));
-            (e["_PID"].as_str().unwrap_or_default().to_string(), v)
-        })
+        .filter(|e| is_flyd(e) && field(e, "_SYSTEMD_UNIT") == "flyd.service")
+        .map(|e| (field(e, "_PID"), e))
         .collect();
     let pids: std::collections::BTreeSet<&str> =
         flyd_entries.iter().map(|(p, _)| p.as_str()).collect();
     assert!(pids.len() >= 3, "flyd processes in the journal: {pids:?}");
-    assert!(flyd_entries.iter().all(|(_, v)| v["level"].is_string()
-        && v["message"].is_string()
-        && v["timestamp"].is_string()));
-    let stats = flyd_entries
+    for (_, e) in &flyd_entries {
+        assert!(
+            ["3", "4", "6", "7"].contains(&field(e, "PRIORITY").as_str())
+                && !field(e, "MESSAGE").is_empty()
+                && !field(e, "FLYD_THREAD").is_empty()
+                && field(e, "TARGET").starts_with("flyd")
+                && !field(e, "CODE_FILE").is_empty(),
+            "a flyd entry without its priority, message, thread, target or source: {e}"
+        );
+        assert!(
+            !field(e, "MESSAGE").starts_with('{'),
+            "a JSON line in the journal's MESSAGE: {e}"
+        );
+    }
+    // Every field of a stats event is a journal field of its own, and MESSAGE reads as the
+    // terminal shows it ("stats name=value ...").
+    let (_, stats) = flyd_entries
         .iter()
-        .rfind(|(_, v)| v["message"] == "stats" && v["generations_per_sec"].is_number())
+        .rfind(|(_, e)| {
+            field(e, "MESSAGE").starts_with("stats ")
+                && !field(e, "FLYD_GENERATIONS_PER_SEC").is_empty()
+        })
         .unwrap_or_else(|| panic!("no stats event with its numbers in the journal"));
+    let stats_message = field(stats, "MESSAGE");
+    let mut stats_fields = 0;
+    for (name, _) in stats_message
+        .split(' ')
+        .skip(1)
+        .filter_map(|t| t.split_once('='))
+        .filter(|(k, _)| {
+            k.chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+        })
+    {
+        let value = field(stats, &format!("FLYD_{}", name.to_ascii_uppercase()));
+        assert!(
+            stats_message.contains(&format!("{name}={value}")),
+            "stats field {name} not a journal field of its own (FLYD_{}={value:?}): {stats}",
+            name.to_ascii_uppercase()
+        );
+        stats_fields += 1;
+    }
+    assert!(
+        stats_fields >= 10,
+        "{stats_fields} fields in {stats_message}"
+    );
+    assert_eq!(field(stats, "PRIORITY"), "6", "stats is INFO");
     let ready = flyd_entries
         .iter()
-        .filter(|(_, v)| {
-            v["message"]
-                .as_str()
-                .is_some_and(|m| m.starts_with("ready: both cameras"))
-                && v["generation"].is_number()
+        .filter(|(_, e)| {
+            field(e, "MESSAGE").starts_with("ready: both cameras")
+                && field(e, "FLYD_GENERATION").parse::<u64>().is_ok()
         })
         .count();
     assert!(ready >= 3, "{ready} ready events with their generation");
+
+    // `journalctl -u flyd -p err` on the clean run (to frame 55): empty.
+    let err_clean = journal_entries(&r, "err-clean.json");
+    assert!(
+        err_clean.is_empty(),
+        "journalctl -u flyd -p err on a clean run: {err_clean:?}"
+    );
+    // `journalctl -u flyd -p warning` after the black camera: exactly flyd's WARN and ERROR
+    // entries of the journal at that moment, the camera's warning among them, no INFO.
+    let at_90 = journal_entries(&r, "journal-at-90.json");
+    let warnings = journal_entries(&r, "warnings.json");
+    let cursors = |v: &[serde_json::Value], pred: &dyn Fn(&serde_json::Value) -> bool| {
+        v.iter()
+            .filter(|e| is_flyd(e) && pred(e))
+            .map(|e| field(e, "__CURSOR"))
+            .collect::<std::collections::BTreeSet<_>>()
+    };
+    let severe = |e: &serde_json::Value| matches!(field(e, "PRIORITY").as_str(), "3" | "4");
+    assert!(
+        warnings
+            .iter()
+            .all(|e| field(e, "PRIORITY").parse::<u8>().is_ok_and(|p| p <= 4)),
+        "-p warning listed an entry below warning: {warnings:?}"
+    );
+    let listed = cursors(&warnings, &|_| true);
+    let expected = cursors(&at_90, &severe);
+    assert!(
+        expected.is_subset(&listed),
+        "flyd's WARN/ERROR entries missing from -p warning: {:?}",
+        expected.difference(&listed).collect::<Vec<_>>()
+    );
+    let infos = cursors(&at_90, &|e| field(e, "PRIORITY") == "6");
+    assert!(
+        infos.len() >= 5,
+        "{} INFO entries before frame 90",
+        infos.len()
+    );
+    assert!(infos.is_disjoint(&listed), "an INFO entry under -p warning");
+    let uniform = warnings
+        .iter()
+        .find(|e| is_flyd(e) && field(e, "MESSAGE").starts_with("image uniform"))
+        .unwrap_or_else(|| panic!("no WARN for the black camera under -p warning: {warnings:?}"));
+    assert_eq!(field(uniform, "PRIORITY"), "4");
+    assert_eq!(field(uniform, "FLYD_CAMERA"), "right");
+    assert_eq!(field(uniform, "TARGET"), "flyd::daemon::evolution");
+    assert_eq!(field(uniform, "FLYD_THREAD"), "flyd-evolution");
+    // `journalctl -u flyd FLYD_CAMERA=right`: a match on a field of flyd's.
+    let matched = journal_entries(&r, "field-match.json");
+    assert!(
+        !matched.is_empty() && matched.iter().all(|e| field(e, "FLYD_CAMERA") == "right"),
+        "journalctl -u flyd FLYD_CAMERA=right: {matched:?}"
+    );
+    assert!(
+        matched
+            .iter()
+            .any(|e| field(e, "__CURSOR") == field(uniform, "__CURSOR"))
+    );
+    // systemd/README.md's Logs section, each command as documented.
+    let doc_rc: BTreeMap<String, String> = r
+        .run
+        .read_to_string("doc-commands.txt")
+        .lines()
+        .filter_map(|l| l.split_once(' '))
+        .map(|(n, rc)| (n.to_string(), rc.to_string()))
+        .collect();
+    let doc = |name: &str, rc: &str, wants: &[&str]| {
+        let out = r.run.read_to_string(&format!("doc-{name}.txt"));
+        assert_eq!(
+            doc_rc.get(name).map(String::as_str),
+            Some(rc),
+            "{name}: {out}"
+        );
+        for want in wants {
+            assert!(out.contains(want), "{name}: no {want:?} in:\n{out}");
+        }
+    };
+    // -f follows until stopped (timeout's 124); the stats line shows its figures.
+    doc("follow", "124", &["flyd["]);
+    doc(
+        "warning",
+        "0",
+        &["image uniform or without texture", "camera=right"],
+    );
+    doc("err", "0", &[]);
+    doc("field", "0", &["image uniform", "camera=right"]);
+    doc("thread", "0", &["flyd["]);
+    doc(
+        "verbose",
+        "0",
+        &["FLYD_THREAD=", "PRIORITY=", "TARGET=flyd"],
+    );
 
     // Stopped: SHUTDOWN status frame, exit 0, nothing from flyd until the upgrade's start.
     // ExecMainStatus: flyd's exit status; Result=success: no timeout, no signal, no core.
@@ -1733,11 +1859,66 @@ fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_
          active/running (READY=1, STATUS={status_text:?}); STOP {reaction} frames after the \
          pedestrian; security {exposure}; SIGSTOP: watchdog timeout, NRestarts {n0}->{n1} by feeder frame {restart_frame}, \
          no frame while stopped, {resumed} commands after the restart; journal: {} flyd \
-         JSON events from {} processes (stats: {} gen/s); stop: exit 0, last status SHUTDOWN; \
+         entries from {} processes (stats: {} gen/s, {stats_fields} fields), -p err empty on \
+         the clean run, -p warning {} entries (the black camera's among them, no INFO), \
+         FLYD_CAMERA=right {} entries; stop: exit 0, last status SHUTDOWN; \
          upgrade kept the edit and restarted flyd; remove stopped it; {bus}",
         installed["unit"],
         flyd_entries.len(),
         pids.len(),
-        stats.1["generations_per_sec"],
+        field(stats, "FLYD_GENERATIONS_PER_SEC"),
+        warnings.len(),
+        matched.len(),
     ));
+}
+
+/// `journalctl -o json` output: one entry a line.
+fn journal_entries(r: &FlydRun, file: &str) -> Vec<serde_json::Value> {
+    r.run
+        .read_to_string(file)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("journalctl -o json line"))
+        .collect()
+}
+
+/// A journal field as text (journalctl writes a value that is not printable UTF-8 as an array
+/// of bytes); empty when absent.
+fn field(e: &serde_json::Value, name: &str) -> String {
+    match &e[name] {
+        serde_json::Value::String(s) => s.clone(),
+        serde_json::Value::Array(bytes) => String::from_utf8_lossy(
+            &bytes
+                .iter()
+                .filter_map(|b| b.as_u64().map(|b| b as u8))
+                .collect::<Vec<u8>>(),
+        )
+        .into_owned(),
+        _ => String::new(),
+    }
+}
+
+fn is_flyd(e: &serde_json::Value) -> bool {
+    field(e, "SYSLOG_IDENTIFIER") == "flyd"
+}
+
+/// A flyd journal entry as flyd's JSON line holds the event: `message` (the journal's MESSAGE,
+/// with its `name=value` tail), `level`, and each FLYD_* field by its name.
+fn as_log_event(e: &serde_json::Value) -> serde_json::Value {
+    let mut v = serde_json::Map::new();
+    v.insert("message".into(), field(e, "MESSAGE").into());
+    let level = match field(e, "PRIORITY").as_str() {
+        "3" => "ERROR",
+        "4" => "WARN",
+        "6" => "INFO",
+        _ => "DEBUG",
+    };
+    v.insert("level".into(), level.into());
+    if let Some(map) = e.as_object() {
+        for name in map.keys() {
+            if let Some(rest) = name.strip_prefix("FLYD_") {
+                v.insert(rest.to_ascii_lowercase(), field(e, name).into());
+            }
+        }
+    }
+    serde_json::Value::Object(v)
 }

@@ -94,6 +94,8 @@ pub enum CameraSource {
     Mock {
         scenario: String,
         faults: Vec<MockFault>,
+        /// The scenario plays again from its first frame when it ends (`cameras.mock_loop`).
+        looped: bool,
     },
 }
 
@@ -281,10 +283,13 @@ pub struct CanSection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LogFormat {
-    /// JSON lines when stdout is not a terminal (journald), human-readable on a terminal.
+    /// Native journal entries on the stream systemd connected to the journal
+    /// (`$JOURNAL_STREAM`), human-readable on a terminal, JSON lines anywhere else.
     Auto,
     Json,
     Human,
+    /// Native journal entries over journald's socket (JSON lines if it is not there).
+    Journal,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -409,6 +414,7 @@ impl DaemonConfig {
                 source: CameraSource::Mock {
                     scenario: "in-code".into(),
                     faults: Vec::new(),
+                    looped: false,
                 },
                 width,
                 height,

@@ -107,9 +107,17 @@ pub type Cameras = (Box<dyn FrameSource>, Box<dyn FrameSource>);
 /// `clock`.
 pub fn open_cameras(config: &DaemonConfig, clock: &SharedClock) -> Result<Cameras, DaemonError> {
     match &config.cameras.source {
-        CameraSource::Mock { scenario, faults } => {
+        CameraSource::Mock {
+            scenario,
+            faults,
+            looped,
+        } => {
             let (w, h) = (config.cameras.width, config.cameras.height);
             let (mut left, mut right, _) = mock_cameras(scenario, w, h, clock, faults)?;
+            if *looped {
+                left.play_in_a_loop();
+                right.play_in_a_loop();
+            }
             if config.cameras.pixel_format == crate::capture::CaptureFormat::Mjpg {
                 // The V4L2 MJPEG path (decode, then prepare), on the mock's frames.
                 for camera in [&mut left, &mut right] {

@@ -64,7 +64,10 @@ pub struct MockCamera {
     clock: SharedClock,
     start: Duration,
     period: Duration,
+    /// Frames delivered before the end of the stream (the scenario's, or all when looped).
     frames: u32,
+    /// The scenario's frames: frame `k` shows the scenario's frame `k % scenario_frames`.
+    scenario_frames: u32,
     first_obstacle: Option<u32>,
     /// Next frame this camera wants.
     next: u32,
@@ -202,6 +205,7 @@ pub fn mock_cameras(
         start,
         period,
         frames,
+        scenario_frames: frames.max(1),
         first_obstacle,
         next: 0,
         pixels: vec![0; bytes],
@@ -275,10 +279,12 @@ impl MockCamera {
                     return Err(SourceError::EndOfStream);
                 }
                 let feed = &mut *feed;
-                let (l, r) = feed.stereo.frame(k).map_err(|e| SourceError::Format {
-                    device: self.name.clone(),
-                    reason: format!("rendering frame {k}"),
-                    cause: Some(e.into()),
+                let (l, r) = feed.stereo.frame(k % self.scenario_frames).map_err(|e| {
+                    SourceError::Format {
+                        device: self.name.clone(),
+                        reason: format!("rendering frame {k}"),
+                        cause: Some(e.into()),
+                    }
                 })?;
                 feed.left.copy_from_slice(l);
                 feed.right.copy_from_slice(r);
@@ -307,6 +313,12 @@ impl MockCamera {
 }
 
 impl MockCamera {
+    /// The scenario plays again from its first frame when it ends, for ever (frame indices
+    /// go on counting): a daemon on mock cameras that runs until it is stopped.
+    pub fn play_in_a_loop(&mut self) {
+        self.frames = u32::MAX;
+    }
+
     /// From now on, frames come as an MJPEG camera delivers them: JPEG-encoded on this
     /// capture thread, decoded and prepared by [`crate::capture::FrameConverter`] (the V4L2
     /// MJPEG path; `cameras.pixel_format = "MJPG"` with mock cameras).

@@ -24,6 +24,8 @@ pub(super) struct RawCameras {
     stale_frames: u32,
     #[serde(default)]
     mock_faults: Vec<MockFault>,
+    #[serde(default)]
+    mock_loop: bool,
 }
 
 fn default_pixel_format() -> CaptureFormat {
@@ -88,9 +90,16 @@ impl RawCameras {
                 CameraSource::Mock {
                     scenario,
                     faults: self.mock_faults,
+                    looped: self.mock_loop,
                 }
             }
             (Some(left), Some(right), None) => {
+                if self.mock_loop {
+                    return bad(
+                        "cameras.mock_loop",
+                        "loops mock cameras only (cameras.mock)",
+                    );
+                }
                 if !self.mock_faults.is_empty() {
                     return bad(
                         "cameras.mock_faults",

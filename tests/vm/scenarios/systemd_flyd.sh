@@ -7,6 +7,10 @@
 #   install     apt install ./flyd_*.deb: the unit loaded, neither enabled nor started
 #   start       systemctl start flyd returns once flyd sent READY=1 (Type=notify)
 #   pedestrian  STOP on vcan0 (candump.log), the feeder past frame 90
+#   journal     flyd logs natively to the journal (issue 45): `journalctl -u flyd -p err` on
+#               the clean run to frame 55 (err-clean.json), then the right camera black from
+#               frame 60 to 75 (the feeder's --black): `-p warning` (warnings.json) and a
+#               match on a field of flyd's (FLYD_CAMERA=right: field-match.json)
 #   security    systemd-analyze security flyd on the running unit
 #   watchdog    flyd SIGSTOPped: systemd's watchdog kills it, Restart= starts it again
 #               (NRestarts grows, a new MainPID), it warms up again and sends again
@@ -43,12 +47,16 @@ done
 
 # --- configure: the VM configuration, pointing at the loopback cameras and vcan0 -------------
 flyd_config
+# Logs as the shipped configuration has them (format = "auto": the journal under systemd), not
+# the other scenarios' JSON lines to a file.
+sed -i 's/^format = "json"$/format = "auto"/' "$FLYD_DIR/flyd.toml"
+grep -q '^format = "auto"$' "$FLYD_DIR/flyd.toml"
 install -m 0644 "$FLYD_DIR/flyd.toml" /etc/flyd/flyd.toml
 install -m 0644 "$FLYD_DIR/mock-rig-320x240.toml" /etc/flyd/mock-rig-320x240.toml
 flyd check-config /etc/flyd/flyd.toml
 
 flyd_candump
-flyd_feeder pedestrian-steps-in
+flyd_feeder pedestrian-steps-in --black right --at-frame 60 --resume-at 75
 # flyd's stdout as journald stored it, across restarts: what the frame-counting helpers read.
 journalctl -u flyd -f -o cat --no-pager >"$RESULTS/flyd.log" 2>&1 &
 JOURNAL=$!
@@ -61,7 +69,29 @@ vm_result start "active=$(systemctl is-active flyd)" \
 systemctl show flyd >"$RESULTS/show-start.txt"
 flyd_wait_running 90
 flyd_go
+flyd_wait_frame 55 60
+# --- the journal: priorities and fields ------------------------------------------------------
+journalctl -u flyd -p err -o json --no-pager >"$RESULTS/err-clean.json"
 flyd_wait_frame 90 60
+# The black camera's WARN is in the journal by now: the whole journal, then what -p warning
+# and a field match list.
+journalctl -u flyd -o json --no-pager >"$RESULTS/journal-at-90.json"
+journalctl -u flyd -p warning -o json --no-pager >"$RESULTS/warnings.json"
+journalctl -u flyd -o json --no-pager FLYD_CAMERA=right >"$RESULTS/field-match.json"
+# The commands of systemd/README.md's Logs section, as documented: output and exit status.
+doc_command() {
+    _name="$1"
+    shift
+    _rc=0
+    "$@" --no-pager >"$RESULTS/doc-$_name.txt" 2>&1 || _rc=$?
+    echo "$_name $_rc" >>"$RESULTS/doc-commands.txt"
+}
+doc_command follow timeout 3 journalctl -u flyd -f
+doc_command warning journalctl -u flyd -b -p warning
+doc_command err journalctl -u flyd -b -p err
+doc_command field journalctl -u flyd FLYD_CAMERA=right
+doc_command thread journalctl -u flyd FLYD_THREAD=flyd-control -n 5
+doc_command verbose journalctl -u flyd -o verbose -n 1
 
 # --- security, on the running unit -----------------------------------------------------------
 systemd-analyze security --no-pager flyd >"$RESULTS/security.txt" 2>&1
