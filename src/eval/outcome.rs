@@ -59,6 +59,9 @@ pub struct Accuracy {
     pub within_3px: f64,
     /// Pixels with a known disparity under those flies.
     pub pixels: usize,
+    /// The most of those flies on one pixel (every pixel, known or not): sharing should keep
+    /// a match from taking many flies that then search nothing.
+    pub most_on_one_pixel: usize,
 }
 
 /// Flies [`Accuracy`] looks at (the paper's figures draw the best 250).
@@ -78,12 +81,17 @@ impl Accuracy {
         unique.sort_by(|&a, &b| pop.raw_fitness[b].total_cmp(&pop.raw_fitness[a]));
         unique.truncate(ACCURACY_FLIES);
         let (mut n, mut one, mut three) = (0usize, 0usize, 0usize);
-        let mut seen = std::collections::HashSet::new();
+        let mut seen = std::collections::HashMap::new();
         for i in unique {
             let (u, v) = (pop.u_left[i].round(), pop.v_left[i].round());
             // Each pixel once (a negative or NaN coordinate is outside the map).
             let inside = u >= 0.0 && v >= 0.0;
-            if !inside || !seen.insert((u as usize, v as usize)) {
+            if !inside {
+                continue;
+            }
+            let count = seen.entry((u as usize, v as usize)).or_insert(0usize);
+            *count += 1;
+            if *count > 1 {
                 continue;
             }
             let Some(t) = truth.get(u as usize, v as usize) else {
@@ -98,6 +106,7 @@ impl Accuracy {
             within_1px: one as f64 / n as f64,
             within_3px: three as f64 / n as f64,
             pixels: n,
+            most_on_one_pixel: seen.values().copied().max().unwrap_or(0),
         })
     }
 }

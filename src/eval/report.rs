@@ -32,6 +32,8 @@ pub struct ItemReport {
     /// Of the runs against a `truth`: the share of flies within 1 px, lowest and median.
     pub within_1px_min: Option<f64>,
     pub within_1px_median: Option<f64>,
+    /// Of the same runs: the most of the fittest unique flies on one pixel, on any seed.
+    pub most_on_one_pixel: Option<usize>,
     /// Why the runs that failed did.
     pub failures: Vec<String>,
     pub runs: Vec<Outcome>,
@@ -84,6 +86,10 @@ impl ItemReport {
         Self {
             within_1px_min: within.first().copied(),
             within_1px_median: within.get(within.len() / 2).copied(),
+            most_on_one_pixel: runs
+                .iter()
+                .filter_map(|r| r.accuracy.map(|a| a.most_on_one_pixel))
+                .max(),
             name: item.name.clone(),
             label: item.clone(),
             ok,
@@ -164,21 +170,23 @@ impl fmt::Display for Report {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{:26} {:14} {:>7} {:>6} {:>7} {:>7} {:>11} {:>11}  commands per seed; distances",
-            "item", "label", "ok", "misses", "f.SLOW", "f.STOP", "dist.err", "1px min/med"
+            "{:26} {:14} {:>7} {:>6} {:>7} {:>7} {:>11} {:>15}  commands per seed; distances",
+            "item", "label", "ok", "misses", "f.SLOW", "f.STOP", "dist.err", "1px min/med pile"
         )?;
         for i in &self.items {
             let err = match (i.distance_error_median, i.distance_error_max) {
                 (Some(m), Some(x)) => format!("{m:.2}/{x:.2}"),
                 _ => "-".into(),
             };
-            let acc = match (i.within_1px_min, i.within_1px_median) {
-                (Some(a), Some(m)) => format!("{:.0}/{:.0}%", 100.0 * a, 100.0 * m),
+            let acc = match (i.within_1px_min, i.within_1px_median, i.most_on_one_pixel) {
+                (Some(a), Some(m), Some(p)) => {
+                    format!("{:.0}/{:.0}% {p:>4}", 100.0 * a, 100.0 * m)
+                }
                 _ => "-".into(),
             };
             writeln!(
                 f,
-                "{:26} {:14} {:>3}/{:<3} {:>6} {:>7} {:>7} {:>11} {:>11}  {}  {}",
+                "{:26} {:14} {:>3}/{:<3} {:>6} {:>7} {:>7} {:>11} {:>15}  {}  {}",
                 i.name,
                 i.label.expect.name(),
                 i.ok,
