@@ -270,7 +270,7 @@ pub fn yuyv_to_rgb(src: &[u8], layout: Layout, dst: &mut [u8]) -> Result<(), Con
 
 /// Packed RGB8 (`width * height * 3` bytes) to YUYV (`width * height * 2` bytes, BT.601
 /// limited range, the inverse of [`yuyv_to_rgb`]): what a camera sends of a rendered frame
-/// (the VM suite's feeder, `examples/yuyv_pair.rs`). Each pair of pixels shares the mean of
+/// (the VM suite's feeder, `tests/vm/guest/src/feeder`). Each pair of pixels shares the mean of
 /// their chroma; `width` must be even.
 pub fn rgb_to_yuyv(rgb: &[u8], width: usize, yuyv: &mut [u8]) -> Result<(), ConvertError> {
     let height = rgb.len() / 3 / width.max(1);

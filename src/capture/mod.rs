@@ -7,8 +7,8 @@
 //!
 //! The split is deliberate: this machine and CI have no V4L2, so everything that can be a pure
 //! function is one, and the device layer only moves bytes between the kernel and those
-//! functions. Real-device behaviour is checked in a VM (vivid) by tests that print `SKIP:`
-//! loudly where no device exists.
+//! functions. Real-device behaviour is checked in a VM (tests/vm: two v4l2loopback cameras fed
+//! by the feeder), which CI boots under QEMU.
 
 pub mod convert;
 pub mod v4l2;

@@ -480,7 +480,6 @@ impl Recording {
     }
 }
 
-/// Starts the recorder when `[record]` has a path or `[live]` listens.
 /// Logs how well the rig resolves the SLOW distance at the assumed speed: a warning when one
 /// pixel of disparity there is more than the decision's margin.
 fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
@@ -508,6 +507,7 @@ fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
     }
 }
 
+/// Starts the recorder when `[record]` has a path or `[live]` listens.
 fn start_recording(
     config: &DaemonConfig,
     rig: &flyd_core::geometry::StereoRig,
