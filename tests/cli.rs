@@ -726,3 +726,30 @@ fn the_journal_stream_is_recognised_and_a_missing_journal_is_said_once() {
         assert!(lines.iter().any(|v| v["message"] == "flyd starting"));
     }
 }
+
+/// `flyd eval` without its data names the missing file on the line a person reads, not only
+/// in `--json` (issue 47: it printed "seed 1: error").
+#[test]
+fn eval_without_its_data_names_the_missing_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (ok, stdout, stderr) = flyd(&[
+        "eval",
+        &repo("eval/real.toml"),
+        "--seeds",
+        "1",
+        "--only",
+        "kitti2012_train_000000",
+        "--data",
+        &dir.path().join("missing").display().to_string(),
+    ]);
+    assert!(!ok);
+    let line = stdout
+        .lines()
+        .chain(stderr.lines())
+        .find(|l| l.contains("kitti2012_train_000000: seed 1: error"))
+        .unwrap_or_else(|| panic!("no error line:\n{stdout}\n{stderr}"));
+    assert!(
+        line.contains("calib.txt") && line.contains("No such file"),
+        "{line}"
+    );
+}

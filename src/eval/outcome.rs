@@ -134,7 +134,7 @@ impl Outcome {
             error: Some(why.to_string()),
             command: "?".into(),
             reason: "?".into(),
-            verdict: Verdict::Fail("error".into()),
+            verdict: Verdict::Fail(format!("error: {why}")),
             ..Self::default()
         }
     }
