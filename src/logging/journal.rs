@@ -24,10 +24,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use tracing::field::{Field, Visit};
-use tracing::{Event, Level, Metadata, Subscriber, span};
+use tracing::{Event, Level, Subscriber};
 use tracing_core::callsite::Callsite;
 use tracing_core::field::Value;
-use tracing_core::subscriber::Interest;
 use tracing_subscriber::layer::{Context, Layer};
 
 /// Where journald listens for native entries.
@@ -165,47 +164,7 @@ where
         }
     }
 
-    fn on_register_dispatch(&self, subscriber: &tracing::Dispatch) {
-        self.fallback.on_register_dispatch(subscriber);
-    }
-    fn on_layer(&mut self, subscriber: &mut S) {
-        self.fallback.on_layer(subscriber);
-    }
-    fn register_callsite(&self, metadata: &'static Metadata<'static>) -> Interest {
-        self.fallback.register_callsite(metadata)
-    }
-    fn enabled(&self, metadata: &Metadata<'_>, ctx: Context<'_, S>) -> bool {
-        self.fallback.enabled(metadata, ctx)
-    }
-    fn on_new_span(&self, attrs: &span::Attributes<'_>, id: &span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_new_span(attrs, id, ctx);
-    }
-    fn on_record(&self, span: &span::Id, values: &span::Record<'_>, ctx: Context<'_, S>) {
-        self.fallback.on_record(span, values, ctx);
-    }
-    fn on_follows_from(&self, span: &span::Id, follows: &span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_follows_from(span, follows, ctx);
-    }
-    fn on_enter(&self, id: &span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_enter(id, ctx);
-    }
-    fn on_exit(&self, id: &span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_exit(id, ctx);
-    }
-    fn on_close(&self, id: span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_close(id, ctx);
-    }
-    fn on_id_change(&self, old: &span::Id, new: &span::Id, ctx: Context<'_, S>) {
-        self.fallback.on_id_change(old, new, ctx);
-    }
-    unsafe fn downcast_raw(&self, id: std::any::TypeId) -> Option<*const ()> {
-        if id == std::any::TypeId::of::<Self>() {
-            Some(self as *const Self as *const ())
-        } else {
-            // SAFETY: forwarded as is; the fallback answers for its own types.
-            unsafe { self.fallback.downcast_raw(id) }
-        }
-    }
+    forward_layer!(fallback);
 }
 
 own_callsite!(Fallback, FALLBACK, FALLBACK_META, Level::WARN, &["message"]);

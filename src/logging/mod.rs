@@ -45,6 +45,83 @@ macro_rules! own_callsite {
     };
 }
 
+/// The `Layer` methods a wrapping layer passes on unchanged to its field `$inner` (all but
+/// `on_event`, which the wrapper decides), in an `impl<S, L: Layer<S>> Layer<S>` block.
+macro_rules! forward_layer {
+    ($inner:ident) => {
+        fn on_register_dispatch(&self, subscriber: &tracing::Dispatch) {
+            self.$inner.on_register_dispatch(subscriber);
+        }
+        fn on_layer(&mut self, subscriber: &mut S) {
+            self.$inner.on_layer(subscriber);
+        }
+        fn register_callsite(
+            &self,
+            metadata: &'static tracing::Metadata<'static>,
+        ) -> tracing_core::subscriber::Interest {
+            self.$inner.register_callsite(metadata)
+        }
+        fn enabled(&self, metadata: &tracing::Metadata<'_>, ctx: Context<'_, S>) -> bool {
+            self.$inner.enabled(metadata, ctx)
+        }
+        fn on_new_span(
+            &self,
+            attrs: &tracing::span::Attributes<'_>,
+            id: &tracing::span::Id,
+            ctx: Context<'_, S>,
+        ) {
+            self.$inner.on_new_span(attrs, id, ctx);
+        }
+        fn max_level_hint(&self) -> Option<tracing::level_filters::LevelFilter> {
+            self.$inner.max_level_hint()
+        }
+        fn on_record(
+            &self,
+            span: &tracing::span::Id,
+            values: &tracing::span::Record<'_>,
+            ctx: Context<'_, S>,
+        ) {
+            self.$inner.on_record(span, values, ctx);
+        }
+        fn on_follows_from(
+            &self,
+            span: &tracing::span::Id,
+            follows: &tracing::span::Id,
+            ctx: Context<'_, S>,
+        ) {
+            self.$inner.on_follows_from(span, follows, ctx);
+        }
+        fn event_enabled(&self, event: &tracing::Event<'_>, ctx: Context<'_, S>) -> bool {
+            self.$inner.event_enabled(event, ctx)
+        }
+        fn on_enter(&self, id: &tracing::span::Id, ctx: Context<'_, S>) {
+            self.$inner.on_enter(id, ctx);
+        }
+        fn on_exit(&self, id: &tracing::span::Id, ctx: Context<'_, S>) {
+            self.$inner.on_exit(id, ctx);
+        }
+        fn on_close(&self, id: tracing::span::Id, ctx: Context<'_, S>) {
+            self.$inner.on_close(id, ctx);
+        }
+        fn on_id_change(
+            &self,
+            old: &tracing::span::Id,
+            new: &tracing::span::Id,
+            ctx: Context<'_, S>,
+        ) {
+            self.$inner.on_id_change(old, new, ctx);
+        }
+        unsafe fn downcast_raw(&self, id: std::any::TypeId) -> Option<*const ()> {
+            if id == std::any::TypeId::of::<Self>() {
+                Some(self as *const Self as *const ())
+            } else {
+                // SAFETY: forwarded as is; the wrapped layer answers for its own types.
+                unsafe { self.$inner.downcast_raw(id) }
+            }
+        }
+    };
+}
+
 pub mod governor;
 pub mod journal;
 
