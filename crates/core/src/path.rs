@@ -400,13 +400,10 @@ impl PathEstimator {
         // 0 with the least squares over the whole window.
         let half = self.len / 2;
         if half + 1 < HALF_SAMPLES || self.len - half < HALF_SAMPLES {
-            return self
-                .fit(0, self.len)
-                .filter(|_| self.distance() >= 0.5)
-                .unwrap_or(0.0);
+            return self.fit(0, self.len, 0.5).unwrap_or(0.0);
         }
-        let first = self.fit(0, half + 1);
-        let second = self.fit(half, self.len);
+        let first = self.fit(0, half + 1, 0.25);
+        let second = self.fit(half, self.len, 0.25);
         match (first, second) {
             (Some(a), Some(b)) if a * b > 0.0 => {
                 if a.abs() < b.abs() {
@@ -419,16 +416,9 @@ impl PathEstimator {
         }
     }
 
-    /// The distance travelled over the kept samples.
-    fn distance(&self) -> f64 {
-        (1..self.len)
-            .map(|i| self.samples[(self.head + i) % HELD_SAMPLES].2)
-            .sum()
-    }
-
     /// The least-squares rate of the kept samples `from..to` (their curvature against the
-    /// distance travelled), `None` over less than a quarter of a metre.
-    fn fit(&self, from: usize, to: usize) -> Option<f64> {
+    /// distance travelled), `None` over less than `min_distance` metres.
+    fn fit(&self, from: usize, to: usize, min_distance: f64) -> Option<f64> {
         let (mut n, mut sum_s, mut sum_k, mut sum_ss, mut sum_sk) = (0.0, 0.0, 0.0, 0.0, 0.0);
         let mut s = 0.0;
         for i in from..to {
@@ -443,7 +433,7 @@ impl PathEstimator {
             sum_sk += s * k;
         }
         let var = n * sum_ss - sum_s * sum_s;
-        if s < 0.25 || var <= 0.0 {
+        if s < min_distance || var <= 0.0 {
             return None;
         }
         let rate = (n * sum_sk - sum_s * sum_k) / var;
