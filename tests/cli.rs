@@ -38,30 +38,66 @@ fn shipped_configs_pass_check_config() {
     }
 }
 
-/// The mock rig (f B = 156 px m at 640x480) resolves 17.7 m within the 2 m margin, short of
-/// the SLOW distance at 30 km/h (29.3 m): check-config passes with a warning that states the
-/// rule; at 20 km/h (SLOW distance 15.1 m) it has nothing to say.
+/// The example rig of config/rig.toml (f B = 156 px m at 640x480) resolves 17.6 m within the
+/// 2 m margin, short of the SLOW distance at 30 km/h (29.3 m): check-config passes with a
+/// warning that states the rule; at 20 km/h (SLOW distance 15.1 m) it has nothing to say. The
+/// demo's built-in mock rig resolves as little, and is a simulation: a note, not a warning.
 #[test]
 fn check_config_warns_when_the_rig_cannot_resolve_the_slow_distance() {
-    let (ok, stdout, stderr) = flyd(&["check-config", &repo("config/demo.toml")]);
+    let (ok, stdout, stderr) = flyd(&["check-config", &repo("config/flyd.toml")]);
     assert!(ok && stdout.contains("ok"), "{stdout} {stderr}");
     for needle in [
         "warning: the rig cannot resolve the SLOW distance",
         "29.3 m is 5.5 m of depth (Z^2 / (f B))",
         "decision.margin_m = 2",
-        "resolves 17.7 m",
+        "resolves 17.6 m",
     ] {
         assert!(stderr.contains(needle), "{needle:?} not in {stderr:?}");
     }
-    let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
     let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::copy(repo("config/rig.toml"), dir.path().join("rig.toml")).expect("copy rig");
+    let text = std::fs::read_to_string(repo("config/flyd.toml")).expect("config");
     let file = dir.path().join("slow.toml");
     let slow = text.replacen("assumed_speed_kmh = 30", "assumed_speed_kmh = 20", 1);
-    assert_ne!(slow, text, "demo.toml sets the assumed speed");
+    assert_ne!(slow, text, "flyd.toml sets the assumed speed");
     std::fs::write(&file, slow).expect("write");
     let (ok, stdout, stderr) = flyd(&["check-config", &file.display().to_string()]);
     assert!(ok && stdout.contains("ok"), "{stdout} {stderr}");
     assert!(!stderr.contains("warning"), "{stderr}");
+    // The demo: a note on what the mock rig resolves, no warning.
+    let (ok, stdout, stderr) = flyd(&["check-config", &repo("config/demo.toml")]);
+    assert!(ok && stdout.contains("ok"), "{stdout} {stderr}");
+    assert!(!stderr.contains("warning"), "{stderr}");
+    assert!(
+        stdout.contains("note: the built-in mock rig resolves 17.7 m"),
+        "{stdout}"
+    );
+}
+
+/// The demo logs no WARN about itself: its mock hardware is what it runs on.
+#[test]
+fn the_demo_runs_without_a_warning_about_itself() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args([
+            "run",
+            "--config",
+            &repo("config/demo.toml"),
+            "--duration",
+            "2",
+        ])
+        .output()
+        .expect("flyd run");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("mock rig"),
+        "the resolution is logged: {stderr}"
+    );
+    let warnings: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("WARN") || l.contains("ERROR"))
+        .collect();
+    assert!(warnings.is_empty(), "{warnings:#?}");
 }
 
 /// The demo config with `from` replaced by `to`: check-config and run must both fail, naming
@@ -752,4 +788,466 @@ fn eval_without_its_data_names_the_missing_file() {
         line.contains("calib.txt") && line.contains("No such file"),
         "{line}"
     );
+}
+
+/// The markdown files whose references `every_path_and_command_the_docs_name_exists` checks
+/// (those that exist), besides `docs/*.md`.
+const DOCS: [&str; 6] = [
+    "README.md",
+    "ARCHITECTURE.md",
+    "systemd/README.md",
+    "tests/README.md",
+    "tests/vm/README.md",
+    "tests/fixtures/README.md",
+];
+
+/// A backticked word that starts with one of these (or with any other top-level folder of the
+/// repository) names a path of the repository. Kept even where a folder is gone, so that a doc
+/// still naming it is caught.
+const REPO_FOLDERS: [&str; 13] = [
+    ".ci/",
+    "benches/",
+    "config/",
+    "crates/",
+    "docs/",
+    "eval/",
+    "examples/",
+    "hw-mock/",
+    "packaging/",
+    "scripts/",
+    "src/",
+    "systemd/",
+    "tests/",
+];
+
+/// Upper-case words of real file names; any other (`FILE`, `DIR`, `seedN`, `poses_NN.txt`)
+/// marks a placeholder.
+const REAL_CAPS: [&str; 6] = [
+    "README",
+    "ARCHITECTURE",
+    "LICENSE",
+    "CHANGELOG",
+    "CRATES",
+    "STYLE",
+];
+
+/// Every path and command the docs name exists (issue 47). In README.md, ARCHITECTURE.md,
+/// docs/*.md and the READMEs of systemd/, tests/, tests/vm/ and tests/fixtures/:
+///
+/// - every relative markdown link, `[text](path)` or `(path#anchor)`, names a file or folder
+///   relative to the markdown file (web and mail links and `#anchor` alone are not checked);
+/// - every word of inline code or a code block that starts with a top-level folder
+///   (`src/`, `tests/`, `config/`...) names a file or folder relative to the repository's root
+///   (or to the markdown file's own folder, for a README listing its neighbours), once a
+///   trailing `:line`, `#anchor` or punctuation is stripped; placeholders (`*`, `{`, `<`,
+///   `...`, upper-case words such as `FILE` or `seedN`) are skipped;
+/// - every `flyd WORD` in inline code or a code block, WORD a lower-case word, is a
+///   subcommand the real binary's `flyd --help` lists.
+///
+/// Fails with every dead reference, each with its file and line.
+#[test]
+fn every_path_and_command_the_docs_name_exists() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (ok, help, stderr) = flyd(&["--help"]);
+    assert!(ok, "flyd --help failed: {stderr}");
+    let commands = subcommands(&help);
+    assert!(
+        ["run", "replay", "check-config"]
+            .iter()
+            .all(|c| commands.contains(*c)),
+        "no command list in flyd --help: {commands:?}\n{help}"
+    );
+    let mut docs: Vec<String> = DOCS.iter().map(|d| d.to_string()).collect();
+    let mut pages: Vec<String> = std::fs::read_dir(root.join("docs"))
+        .expect("docs/")
+        .map(|e| {
+            e.expect("a docs/ entry")
+                .file_name()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .filter(|name| name.ends_with(".md"))
+        .map(|name| format!("docs/{name}"))
+        .collect();
+    pages.sort();
+    docs.extend(pages);
+    let prefixes = repo_prefixes(root);
+    let mut checked = Vec::new();
+    let mut dead = Vec::new();
+    for doc in docs.iter().filter(|d| root.join(d).is_file()) {
+        dead.extend(dead_references(root, doc, &commands, &prefixes));
+        checked.push(doc.as_str());
+    }
+    assert!(checked.contains(&"README.md"), "README.md not checked");
+    assert!(
+        dead.is_empty(),
+        "{} dead reference(s) in the docs ({}):\n{}",
+        dead.len(),
+        checked.join(", "),
+        dead.join("\n")
+    );
+}
+
+/// The checker itself: a dead link, path and command are each found with their line, and
+/// live ones, placeholders, web links and anchors are not.
+#[test]
+fn every_path_check_finds_each_kind_of_dead_reference() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path();
+    std::fs::create_dir_all(root.join("docs")).expect("mkdir");
+    std::fs::write(root.join("docs/a.md"), "# a\n").expect("write");
+    let doc = "See [a](docs/a.md), [b](docs/gone.md#x), [web](https://example.com), [top](#top).\n\
+               `docs/a.md:3`, `docs/missing.rs`, `src/<name>.rs`, `tests/FILE`, `docs/*.md`.\n\
+               Run `flyd run --config FILE`, `flyd <command> --help` or `flyd\n\
+               fly --fast`.\n\
+               \n\
+               ```sh\n\
+               flyd replay --out DIR\n\
+               target/release/flyd frobnicate   # not a command\n\
+               cat \"docs/nope.txt\"\n\
+               ```\n\
+               \n    \
+               flyd evaluate\n";
+    std::fs::write(root.join("README.md"), doc).expect("write");
+    let commands = subcommands("Usage: flyd <COMMAND>\n\nCommands:\n  run  R\n  replay  P\n\n");
+    let dead = dead_references(root, "README.md", &commands, &repo_prefixes(root));
+    let expected = [
+        "README.md:1: link (docs/gone.md#x)",
+        "README.md:2: path `docs/missing.rs`",
+        "README.md:3: `flyd fly`",
+        "README.md:8: `flyd frobnicate`",
+        "README.md:9: path `docs/nope.txt`",
+        "README.md:12: `flyd evaluate`",
+    ];
+    assert_eq!(dead.len(), expected.len(), "{dead:#?}");
+    for (found, want) in dead.iter().zip(expected) {
+        assert!(
+            found.starts_with(want),
+            "{found:?} is not {want:?}: {dead:#?}"
+        );
+    }
+}
+
+/// The subcommands `flyd --help` lists under "Commands:".
+fn subcommands(help: &str) -> std::collections::BTreeSet<String> {
+    help.lines()
+        .skip_while(|l| l.trim() != "Commands:")
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next())
+        .map(str::to_owned)
+        .collect()
+}
+
+/// `REPO_FOLDERS` and every other top-level folder of `root` (not hidden, not `target`).
+fn repo_prefixes(root: &Path) -> Vec<String> {
+    let mut prefixes: Vec<String> = REPO_FOLDERS.iter().map(|p| p.to_string()).collect();
+    for entry in std::fs::read_dir(root).expect("the repository") {
+        let entry = entry.expect("an entry");
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if entry.path().is_dir() && !name.starts_with('.') && name != "target" {
+            let prefix = format!("{name}/");
+            if !prefixes.contains(&prefix) {
+                prefixes.push(prefix);
+            }
+        }
+    }
+    prefixes
+}
+
+/// The dead references of the markdown file `doc` (relative to `root`), one line each:
+/// `doc:line: what`.
+fn dead_references(
+    root: &Path,
+    doc: &str,
+    commands: &std::collections::BTreeSet<String>,
+    prefixes: &[String],
+) -> Vec<String> {
+    let text = std::fs::read_to_string(root.join(doc)).unwrap_or_else(|e| panic!("{doc}: {e}"));
+    let dir = root.join(doc).parent().expect("a folder").to_path_buf();
+    let (blocks, prose) = split_code_blocks(&text);
+    let (spans, links_text) = code_spans(&prose);
+    let mut dead = Vec::new();
+    for (line, target) in links(&links_text) {
+        if target.starts_with('#') || target.contains("://") || target.starts_with("mailto:") {
+            continue;
+        }
+        let file = target.split(['#', '?']).next().unwrap_or_default();
+        if !dir.join(file).exists() {
+            dead.push(format!(
+                "{doc}:{line}: link ({target}): no such file or folder"
+            ));
+        }
+    }
+    let mut code: Vec<(usize, String)> = blocks.into_iter().chain(spans).collect();
+    code.sort_by_key(|(line, _)| *line);
+    for (line, piece) in &code {
+        for word in piece.split(|c: char| c.is_whitespace() || "\"'(),;=`".contains(c)) {
+            let Some(path) = repo_path(word, prefixes) else {
+                continue;
+            };
+            if !root.join(path).exists() && !dir.join(path).exists() {
+                dead.push(format!(
+                    "{doc}:{line}: path `{path}`: no such file or folder"
+                ));
+            }
+        }
+        for word in flyd_commands(piece) {
+            if !commands.contains(word) {
+                dead.push(format!(
+                    "{doc}:{line}: `flyd {word}`: not a subcommand of flyd --help ({})",
+                    commands.iter().cloned().collect::<Vec<_>>().join(", ")
+                ));
+            }
+        }
+    }
+    dead
+}
+
+/// The lines of fenced and indented code blocks, each with its line number, and the rest of
+/// the text with those lines left empty (so that line numbers stay).
+fn split_code_blocks(text: &str) -> (Vec<(usize, String)>, String) {
+    let mut code = Vec::new();
+    let mut prose = String::with_capacity(text.len());
+    let mut fence: Option<(char, usize)> = None;
+    let mut previous_blank = true;
+    let mut indented_block = false;
+    // The last line of text was a list item or its continuation: an indented line after it is
+    // the item's next paragraph, not code.
+    let mut in_list = false;
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        let trimmed = line.trim_start();
+        let marker = trimmed.chars().next().filter(|c| *c == '`' || *c == '~');
+        let run = marker.map_or(0, |m| trimmed.chars().take_while(|c| *c == m).count());
+        if let Some((m, len)) = fence {
+            if marker == Some(m) && run >= len && trimmed[run..].trim().is_empty() {
+                fence = None;
+            } else {
+                code.push((n, line.to_owned()));
+            }
+            prose.push('\n');
+            continue;
+        }
+        if let (Some(m), true) = (marker, run >= 3) {
+            fence = Some((m, run));
+            prose.push('\n');
+            previous_blank = false;
+            indented_block = false;
+            continue;
+        }
+        if line.trim().is_empty() {
+            previous_blank = true;
+            prose.push('\n');
+            continue;
+        }
+        let indented = line.starts_with("    ") || line.starts_with('\t');
+        if indented && (indented_block || (previous_blank && !in_list)) {
+            indented_block = true;
+            code.push((n, line.to_owned()));
+            prose.push('\n');
+            continue;
+        }
+        indented_block = false;
+        let item = trimmed.starts_with("- ")
+            || trimmed.starts_with("* ")
+            || trimmed.starts_with("+ ")
+            || trimmed.split_once(['.', ')']).is_some_and(|(num, rest)| {
+                !num.is_empty() && num.chars().all(|c| c.is_ascii_digit()) && rest.starts_with(' ')
+            });
+        in_list = item || (in_list && line.starts_with(' '));
+        previous_blank = false;
+        prose.push_str(line);
+        prose.push('\n');
+    }
+    (code, prose)
+}
+
+/// The inline code spans of `prose` (within a paragraph, over line breaks), each with the line
+/// it starts on and its line breaks made spaces, and `prose` without them (line breaks kept).
+fn code_spans(prose: &str) -> (Vec<(usize, String)>, String) {
+    let line_of = |at: usize| prose[..at].matches('\n').count() + 1;
+    let b = prose.as_bytes();
+    let mut spans = Vec::new();
+    let mut rest = String::with_capacity(prose.len());
+    let (mut i, mut copied) = (0, 0);
+    while i < b.len() {
+        if b[i] != b'`' {
+            i += 1;
+            continue;
+        }
+        let open = i;
+        while i < b.len() && b[i] == b'`' {
+            i += 1;
+        }
+        let len = i - open;
+        let mut j = i;
+        let mut close = None;
+        while j < b.len() {
+            if b[j] == b'`' {
+                let start = j;
+                while j < b.len() && b[j] == b'`' {
+                    j += 1;
+                }
+                if j - start == len {
+                    close = Some(start);
+                    break;
+                }
+            } else {
+                j += 1;
+            }
+        }
+        let Some(close) = close else {
+            continue;
+        };
+        let content = &prose[i..close];
+        let parts: Vec<&str> = content.split('\n').collect();
+        if parts.len() > 2
+            && parts[1..parts.len() - 1]
+                .iter()
+                .any(|p| p.trim().is_empty())
+        {
+            continue; // a blank line ends the paragraph: no span
+        }
+        spans.push((line_of(open), content.replace('\n', " ")));
+        rest.push_str(&prose[copied..open]);
+        rest.extend(content.chars().filter(|c| *c == '\n'));
+        copied = close + len;
+        i = copied;
+    }
+    rest.push_str(&prose[copied..]);
+    (spans, rest)
+}
+
+/// The targets of the markdown links `[text](target)` of `text`, each with its line.
+fn links(text: &str) -> Vec<(usize, String)> {
+    text.match_indices("](")
+        .filter_map(|(at, _)| {
+            let target: String = text[at + 2..]
+                .chars()
+                .take_while(|c| *c != ')' && !c.is_whitespace())
+                .collect();
+            let target = target
+                .trim_start_matches('<')
+                .trim_end_matches('>')
+                .to_owned();
+            let line = text[..at].matches('\n').count() + 1;
+            (!target.is_empty()).then_some((line, target))
+        })
+        .collect()
+}
+
+/// The repository path `word` names, if it starts with one of `prefixes` and is not a
+/// placeholder: without a leading `./`, a trailing `#anchor`, `:line` or punctuation.
+fn repo_path<'w>(word: &'w str, prefixes: &[String]) -> Option<&'w str> {
+    let word = word.strip_prefix("./").unwrap_or(word);
+    if !prefixes.iter().any(|p| word.starts_with(p.as_str())) {
+        return None;
+    }
+    if word.contains(['*', '?', '{', '}', '<', '>', '[', ']', '$', '|', '~'])
+        || word.contains("...")
+    {
+        return None;
+    }
+    let mut path = word.split('#').next().unwrap_or_default();
+    loop {
+        path = path.trim_end_matches(['.', ',', ':', ';', '!']);
+        match path.rsplit_once(':') {
+            Some((head, tail))
+                if !tail.is_empty() && tail.chars().all(|c| c.is_ascii_digit() || c == '-') =>
+            {
+                path = head;
+            }
+            _ => break,
+        }
+    }
+    let placeholder = path
+        .char_indices()
+        .filter(|(at, c)| {
+            c.is_ascii_uppercase() && !path[..*at].ends_with(|p: char| p.is_ascii_uppercase())
+        })
+        .any(|(at, _)| {
+            let caps: String = path[at..]
+                .chars()
+                .take_while(|c| c.is_ascii_uppercase())
+                .collect();
+            let next = path[at + caps.len()..].chars().next();
+            !next.is_some_and(|c| c.is_ascii_lowercase()) && !REAL_CAPS.contains(&caps.as_str())
+        });
+    (!placeholder).then_some(path)
+}
+
+/// The words after `flyd ` in a piece of code: `flyd run` gives `run`; `flyd-rows`,
+/// `flyd_core`, `flyd 2`, `flyd -p` and `flyd <command>` give nothing.
+fn flyd_commands(piece: &str) -> Vec<&str> {
+    piece
+        .match_indices("flyd ")
+        .filter_map(|(at, _)| {
+            let before = piece[..at].chars().next_back();
+            if before.is_some_and(|c| c.is_alphanumeric() || "_-.$".contains(c)) {
+                return None;
+            }
+            let rest = &piece[at + "flyd ".len()..];
+            let end = rest
+                .find(|c: char| !(c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-'))
+                .unwrap_or(rest.len());
+            let word = &rest[..end];
+            let next = rest[end..].chars().next();
+            let whole = !next.is_some_and(|c| c.is_alphanumeric() || c == '_');
+            (word.starts_with(|c: char| c.is_ascii_lowercase()) && whole).then_some(word)
+        })
+        .collect()
+}
+
+/// A scenario filmed from a standing vehicle, decided at its own speed (0 km/h), brakes for
+/// nothing it sees: the summary and stderr say why, and `--speed` decides as if it drove.
+#[test]
+fn a_replay_of_a_standing_vehicle_says_why_it_does_not_brake() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().display().to_string();
+    let args = [
+        "replay",
+        "--scenario",
+        "pedestrian-steps-in",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--flies",
+        "1000",
+        "--generations-per-frame",
+        "1",
+        "--out",
+        &out,
+    ];
+    let (ok, stdout, stderr) = flyd(&args);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    assert_eq!(
+        summary["decided_kmh"],
+        serde_json::json!([0.0, 0.0]),
+        "{stdout}"
+    );
+    assert!(
+        summary["note"]
+            .as_str()
+            .is_some_and(|n| n.contains("stands still")),
+        "{stdout}"
+    );
+    assert!(
+        stderr.contains("note: the vehicle stands still"),
+        "{stderr}"
+    );
+    let mut moving = args.to_vec();
+    moving.extend(["--speed", "30"]);
+    let (ok, stdout, stderr) = flyd(&moving);
+    assert!(ok, "{stderr}");
+    let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary");
+    assert_eq!(
+        summary["decided_kmh"],
+        serde_json::json!([30.0, 30.0]),
+        "{stdout}"
+    );
+    assert!(summary.get("note").is_none(), "{stdout}");
+    assert!(!stderr.contains("note:"), "{stderr}");
 }

@@ -24,8 +24,11 @@ fn measured(
     let text = std::fs::read_to_string(&rig_file).expect("rig");
     std::fs::write(&rig_file, rig_edit(text)).expect("rig");
     let demo = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
-    let config = util::demo_320x240_on(&demo, &rig_file)
-        .replace("mock = \"pedestrian-steps-in\"", "mock = \"pedestrian-4m\"");
+    let config = util::demo_320x240_on(&demo, &rig_file).replace(
+        "mock = \"pedestrian-steps-in\"",
+        // Looped: pairs keep coming however late a loaded machine lets the measure run.
+        "mock = \"pedestrian-4m\"\nmock_loop = true",
+    );
     let config_file = dir.join("flyd.toml");
     std::fs::write(&config_file, config).expect("write config");
     let out = util::output_ok(
@@ -91,10 +94,10 @@ fn the_daemon_corrects_a_wrong_row_correction_itself_and_a_replay_reproduces_it(
     // way; flyd measures that and corrects it from then on.
     let dir = tempfile::tempdir().expect("tempdir");
     // The measure runs under SCHED_IDLE after the warm-up (~0.5 s; on a busy machine it
-    // may take seconds); the scenario ends after 5 s.
+    // took 3.5 s): 8 s of pairs, the scenario looped.
     let events = measured(
         dir.path(),
-        6,
+        8,
         rectified,
         "[rectification]\nright_row_offset_px = 0.5\n",
     );
@@ -123,10 +126,14 @@ fn the_daemon_corrects_a_wrong_row_correction_itself_and_a_replay_reproduces_it(
     // As the image keeps it: to 1/256 px.
     let recorded = changes[1][1].as_f64().expect("px");
     assert!((recorded - applied).abs() <= 1.0 / 512.0, "{summary}");
+    // Pairs after the correction are replayed too (judged on the recording, not on the
+    // clock: the pairs come at 30 a second from the first one).
     let corrected_at = changes[1][0].as_f64().expect("time");
+    let pairs = summary["pairs"].as_u64().expect("pairs") as f64;
+    let after = pairs - 1.0 - 30.0 * corrected_at;
     assert!(
-        corrected_at < 4.0,
-        "a second of pairs after the correction is replayed too: {summary}"
+        after >= 10.0,
+        "{after} pairs after the correction: {summary}"
     );
 }
 

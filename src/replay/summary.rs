@@ -141,6 +141,12 @@ pub struct Summary {
     /// "fixed" (`--speed`: on every frame), "feed" (a scenario's own speed; `speed_kmh`
     /// unused) or "assumed".
     pub speed_source: &'static str,
+    /// The slowest and fastest speed the decision was made at over the generations, km/h.
+    pub decided_kmh: [f64; 2],
+    /// What a reader of the commands should know: a vehicle standing still has no stopping
+    /// distance, so nothing it sees is a reason to brake.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
     /// The flies were moved with the feed's motion between frames.
     pub predict_flies: bool,
     /// Where the feed's motion came from: "scenario NAME", "poses FILE" (a sequence's KITTI
@@ -207,6 +213,23 @@ impl Summary {
             },
             FrameReport::of,
         );
+        let decided_kmh = replay
+            .trace
+            .iter()
+            .map(|r| r.speed * 3.6)
+            .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| {
+                [lo.min(v), hi.max(v)]
+            });
+        let decided_kmh = if replay.trace.is_empty() {
+            [0.0; 2]
+        } else {
+            decided_kmh.map(|v| (v * 1000.0).round() / 1000.0)
+        };
+        let note = (decided_kmh[1] == 0.0 && !replay.trace.is_empty()).then(|| {
+            "the vehicle stands still (0 km/h) on every frame: no stopping distance, so no \
+             obstacle is a reason to brake; `--speed KMH` decides as if it drove"
+                .to_string()
+        });
         Self {
             global_warning: stats.global_warning,
             danger: stats.danger,
@@ -218,7 +241,7 @@ impl Summary {
             perception_stage: Timing::of(&mut stage),
             out_dir: out.display().to_string(),
             decision_mode: replay.settings.decision.mode.to_string(),
-            speed_kmh: replay.settings.speed * 3.6,
+            speed_kmh: (replay.settings.speed * 3.6 * 1000.0).round() / 1000.0,
             speed_source: if replay.settings.fixed_speed {
                 "fixed"
             } else if replay.moving_feed {
@@ -226,6 +249,8 @@ impl Summary {
             } else {
                 "assumed"
             },
+            decided_kmh,
+            note,
             predict_flies: replay.settings.predict && replay.moving_feed,
             motion_source: replay.motion_source.clone(),
             judgeable_distance: replay.perception.judgeable_distance(),
