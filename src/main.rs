@@ -375,7 +375,17 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
         work,
         outputs: args.out.is_some(),
     };
-    let report = flyd::eval::run(&items, &options)?;
+    // On a terminal, one line that says how far it is (rewritten in place); elsewhere
+    // (a pipe, CI's log) nothing but the report.
+    let terminal = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let report = flyd::eval::run_with_progress(&items, &options, |p| {
+        if terminal {
+            eprint!("\r\x1b[2K{}", p.line());
+            if p.done == p.total {
+                eprintln!();
+            }
+        }
+    })?;
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&report)?;
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;

@@ -126,6 +126,58 @@ fn rig_of(item: &Item, data: &Path, work: &Path) -> Result<Option<PathBuf>, Eval
 
 /// Runs every item of `items` on seeds 1..=`options.seeds` and judges each run.
 pub fn run(items: &[Item], options: &Options) -> Result<Report, EvalError> {
+    run_with_progress(items, options, |_| {})
+}
+
+/// How far a run of [`run_with_progress`] is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress<'a> {
+    /// Runs finished, of `total`.
+    pub done: usize,
+    pub total: usize,
+    /// The run that just finished.
+    pub item: &'a str,
+    pub seed: u64,
+    /// Since the start.
+    pub elapsed: std::time::Duration,
+}
+
+impl Progress<'_> {
+    /// One line for a terminal: the count, the run that finished, the time spent and the
+    /// time left at the pace so far.
+    pub fn line(&self) -> String {
+        let minutes = |d: std::time::Duration| {
+            let s = d.as_secs();
+            if s >= 60 {
+                format!("{}m{:02}s", s / 60, s % 60)
+            } else {
+                format!("{s}s")
+            }
+        };
+        let left = (self.done > 0).then(|| {
+            self.elapsed
+                .mul_f64((self.total - self.done.min(self.total)) as f64 / self.done as f64)
+        });
+        format!(
+            "eval: {}/{} runs ({} seed {} done), {} elapsed{}",
+            self.done,
+            self.total,
+            self.item,
+            self.seed,
+            minutes(self.elapsed),
+            left.map_or(String::new(), |l| format!(", about {} left", minutes(l)))
+        )
+    }
+}
+
+/// [`run`], calling `progress` after each run (from the worker that finished it).
+pub fn run_with_progress(
+    items: &[Item],
+    options: &Options,
+    progress: impl Fn(Progress<'_>) + Sync,
+) -> Result<Report, EvalError> {
+    let started = std::time::Instant::now();
+    let finished = AtomicUsize::new(0);
     let rigs = items
         .iter()
         .map(|item| rig_of(item, &options.data, &options.work))
@@ -138,6 +190,7 @@ pub fn run(items: &[Item], options: &Options) -> Result<Report, EvalError> {
     std::thread::scope(|scope| -> Result<(), EvalError> {
         for worker in 0..options.jobs.clamp(1, jobs.len().max(1)) {
             let (jobs, results, next, rigs) = (&jobs, &results, &next, &rigs);
+            let (finished, progress) = (&finished, &progress);
             std::thread::Builder::new()
                 .name(format!("flyd-eval-{worker}"))
                 .spawn_scoped(scope, move || {
@@ -152,6 +205,13 @@ pub fn run(items: &[Item], options: &Options) -> Result<Report, EvalError> {
                         {
                             *slot = Some(outcome);
                         }
+                        progress(Progress {
+                            done: finished.fetch_add(1, Ordering::Relaxed) + 1,
+                            total: jobs.len(),
+                            item: &items[i].name,
+                            seed,
+                            elapsed: started.elapsed(),
+                        });
                     }
                 })
                 .map_err(EvalError::Spawn)?;
@@ -194,4 +254,33 @@ fn run_one(item: &Item, rig: Option<&Path>, seed: u64, options: &Options) -> Out
         Ok(outcome)
     };
     replay().unwrap_or_else(|e| Outcome::failed(&flyd_core::chain::Chain(&e).to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Progress;
+    use std::time::Duration;
+
+    #[test]
+    fn progress_says_what_is_done_and_what_is_left_at_the_pace_so_far() {
+        let p = |done, secs| Progress {
+            done,
+            total: 116,
+            item: "drive-40",
+            seed: 3,
+            elapsed: Duration::from_secs(secs),
+        };
+        assert_eq!(
+            p(29, 290).line(),
+            "eval: 29/116 runs (drive-40 seed 3 done), 4m50s elapsed, about 14m30s left"
+        );
+        assert_eq!(
+            p(116, 5).line(),
+            "eval: 116/116 runs (drive-40 seed 3 done), 5s elapsed, about 0s left"
+        );
+        assert_eq!(
+            p(0, 0).line(),
+            "eval: 0/116 runs (drive-40 seed 3 done), 0s elapsed"
+        );
+    }
 }
