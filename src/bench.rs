@@ -170,7 +170,7 @@ pub fn generations(cfg: &GenerationBench) -> Result<GenerationReport, BenchError
     };
     let fps = scenario.fps();
     let motions: Vec<_> = (0..count)
-        .map(|f| flyd_core::motion::VehicleMotion {
+        .map(|f| flyd_core::kinematics::VehicleMotion {
             speed: scenario.speed_at(f),
             yaw_rate: scenario.yaw_rate_at(f),
         })

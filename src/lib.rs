@@ -5,12 +5,12 @@
 pub mod bench;
 pub mod bus;
 pub mod capture;
-pub mod clock;
 pub mod config;
 pub mod daemon;
 pub mod eval;
 pub mod logging;
 pub mod mock;
+pub mod os_clock;
 pub mod path_bench;
 pub mod record;
 pub mod replay;

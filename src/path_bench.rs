@@ -21,7 +21,7 @@
 use std::path::{Path, PathBuf};
 
 use flyd_core::decision::{Command, DecisionConfig};
-use flyd_core::motion::VehicleMotion;
+use flyd_core::kinematics::VehicleMotion;
 use flyd_core::path::{PathEstimator, PathModel};
 use nalgebra::Vector3;
 

@@ -664,7 +664,7 @@ fn obstacle_with(f: impl FnOnce(&mut ObstacleMsg)) -> [u8; 8] {
 /// decodes in flyd to the same physical values and is accepted by its motion monitor.
 #[test]
 fn a_motion_frame_built_from_the_dbc_decodes() {
-    use flyd_core::can::motion::{MotionConfig, MotionMonitor};
+    use flyd_core::can::motion_monitor::{MotionConfig, MotionMonitor};
     let dbc = load();
     let msg = message(&dbc, MotionMsg::NAME);
     let build = |values: &[(&str, f64)], counter: u8| {

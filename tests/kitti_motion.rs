@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use flyd_core::engine::{Engine, EngineParams};
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::geometry::StereoRig;
-use flyd_core::motion::EgoTransform;
+use flyd_core::kinematics::EgoTransform;
 use nalgebra::Point3;
 
 fn fixture(path: &str) -> PathBuf {

@@ -6,7 +6,7 @@ use flyd::mock::MockStereo;
 use flyd_core::decision::{Command, DecisionConfig, DecisionMode};
 use flyd_core::engine::EngineParams;
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
-use flyd_core::motion::VehicleMotion;
+use flyd_core::kinematics::VehicleMotion;
 use flyd_core::perception::{Perception, PerceptionConfig};
 
 const W: u32 = 640;

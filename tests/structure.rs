@@ -13,8 +13,8 @@
 //! A path names the deepest known module it goes through (`crate::engine::Engine` is `engine`,
 //! `crate::can::messages::MotionMsg` is `can::messages`). Two graphs must have no circle:
 //!
-//! - the top-level modules, each with everything under it (`motion` -> `can` -> `perception`
-//!   -> `engine` -> `motion` is a circle);
+//! - the top-level modules, each with everything under it (`kinematics` -> `can` -> `perception`
+//!   -> `engine` -> `kinematics` is a circle);
 //! - in each top-level module, its direct submodules (`engine::fitness` <-> `engine::sharing`
 //!   is a circle). A module's own file (`mod.rs`, or `calib.rs` beside `calib/`) assembles
 //!   and re-exports its submodules: edges between it and its own submodules are the module
@@ -686,11 +686,11 @@ const CORE_LAYERS: &[&[&str]] = &[
         "clock",
         "geometry",
         "isa",
+        "kinematics",
         "macros",
-        "motion",
         "pairing",
         "path",
-        "road",
+        "road_plane",
         "status",
         "test_support",
         "textfile",
@@ -708,7 +708,7 @@ const CORE_LAYERS: &[&[&str]] = &[
 /// and the recorder; the daemon (and the logs, configured from the configuration); the
 /// commands (replay, bench); the evaluation over replays.
 const RUNTIME_LAYERS: &[&[&str]] = &[
-    &["clock", "source", "thread"],
+    &["os_clock", "source", "thread"],
     &["bus", "capture"],
     &["mock"],
     &["config", "record"],

@@ -13,15 +13,15 @@
 //! Errors are classified into [`BusError`]'s retryable and fatal classes by errno
 //! ([`classify`]); the classes are documented with the trait, in `flyd_core::can::bus`.
 //!
-//! One transport a file: `memory.rs`, `candump.rs`, `socket.rs`, and `reopening.rs` around
+//! One transport a file: `memory.rs`, `candump_log.rs`, `socket.rs`, and `reopening.rs` around
 //! either SocketCAN direction.
 
-mod candump;
+mod candump_log;
 mod memory;
 mod reopening;
 mod socket;
 
-pub use candump::{CandumpLogBus, CandumpReplayRx, ReplayLogError};
+pub use candump_log::{CandumpLogBus, CandumpReplayRx, ReplayLogError};
 pub use memory::{MemoryBus, MemoryRx, RecordedFrame};
 pub use reopening::ReopeningBus;
 pub use socket::{RetryPolicy, SocketCanBus, SocketCanRx, next_bus_off_state, write_with_retry};

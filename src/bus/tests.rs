@@ -232,7 +232,7 @@ fn candump_bus_classifies_write_errors() {
             Ok(())
         }
     }
-    let mut bus = CandumpLogBus::new(Full, "vcan0", crate::clock::SystemClock);
+    let mut bus = CandumpLogBus::new(Full, "vcan0", crate::os_clock::SystemClock);
     let err = bus.send(0x120, &[]).expect_err("disk full");
     assert!(err.is_fatal(), "{err:?}");
 }

@@ -21,7 +21,7 @@ use crate::capture::CaptureFormat;
 use crate::mock::camera::{MAX_MOCK_FAULTS, MockFault};
 use flyd_core::calib::{self, CalibError, Calibration};
 use flyd_core::can::CanConfig;
-use flyd_core::can::motion::MotionConfig;
+use flyd_core::can::motion_monitor::MotionConfig;
 use flyd_core::decision::Command;
 use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
 use flyd_core::engine::{Engine, EngineError, EngineParams};

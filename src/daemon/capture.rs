@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use super::ring::FrameWriter;
-use crate::clock::SharedClock;
+use crate::os_clock::SharedClock;
 use crate::source::Side;
 use crate::source::{FrameSource, SourceError};
 use crate::thread::Shutdown;

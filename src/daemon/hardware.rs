@@ -9,11 +9,11 @@ use crate::bus::{
     CandumpLogBus, CandumpReplayRx, ReopeningBus, RetryPolicy, SocketCanBus, SocketCanRx,
 };
 use crate::capture::{V4l2Config, V4l2Source};
-use crate::clock::SharedClock;
-use crate::clock::SystemClock;
 use crate::config::{CameraSource, CanTarget, DaemonConfig};
 use crate::mock::camera::mock_cameras;
 use crate::mock::vehicle::MockVehicle;
+use crate::os_clock::SharedClock;
+use crate::os_clock::SystemClock;
 use crate::source::FrameSource;
 use flyd_core::can::bus::{CanBus, CanReceiver};
 

@@ -23,7 +23,7 @@
 //!   lock-free slots and `try_send`; the control thread runs on its own periods and reads
 //!   counters. A stalled thread shows up as a fault, never as a stalled pipeline.
 //! - The engine never reads a clock; all time comes from the injected
-//!   [`crate::clock::Clock`], and frame timestamps must be on its timebase (CLOCK_MONOTONIC in
+//!   [`crate::os_clock::Clock`], and frame timestamps must be on its timebase (CLOCK_MONOTONIC in
 //!   production).
 //! - Shutdown (the [`Shutdown`] flag, or a mock scenario's end of stream): the control thread
 //!   sends its last command (reason SHUTDOWN) and a status with state SHUTDOWN, then every
@@ -31,9 +31,9 @@
 //! - Nothing on the real-time path returns an error for a runtime fault: faults become fault
 //!   bits and the safe command. [`run`] fails only on start-up errors.
 
-pub mod bench;
 pub mod capture;
 pub mod control;
+pub mod end_to_end_bench;
 pub mod evolution;
 pub mod hardware;
 pub mod notify;
@@ -49,21 +49,21 @@ use std::time::Duration;
 
 use thiserror::Error;
 
-pub use crate::clock::{MonotonicClock, SharedClock};
+pub use crate::os_clock::{MonotonicClock, SharedClock};
 pub use crate::thread::{Shutdown, spawn_named};
-pub use bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
 pub use control::ControlReport;
+pub use end_to_end_bench::{BenchReport, bench_end_to_end, bench_end_to_end_with};
 pub use hardware::{Cameras, InterfaceLock, lock_interface};
 pub use snapshot::Snapshot;
 
 use crate::config::{ConfigError, DaemonConfig};
-use crate::record::bus::RecordingBus;
+use crate::record::recording_bus::RecordingBus;
 use crate::source::Side;
 use capture::{CameraHealth, CaptureThread};
 use control::{ControlThread, Inputs, MotionInputs};
 use evolution::{EvolutionCounters, EvolutionThread};
 use flyd_core::can::bus::{CanBus, CanReceiver};
-use flyd_core::can::motion::MotionMonitor;
+use flyd_core::can::motion_monitor::MotionMonitor;
 use flyd_core::can::{CanConfigError, Transmitter};
 use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use flyd_core::motion::VehicleMotion;
+use flyd_core::kinematics::VehicleMotion;
 
 /// The word of "not known" (a NaN speed).
 const UNKNOWN: u64 = (f32::NAN.to_bits() as u64) << 32;

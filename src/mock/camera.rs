@@ -22,7 +22,7 @@ use hw_mock::Scenario;
 use serde::Deserialize;
 
 use super::{MockError, MockStereo};
-use crate::clock::SharedClock;
+use crate::os_clock::SharedClock;
 use crate::source::{FrameMeta, FrameSource, Side, SourceError};
 use flyd_core::frame::{PixelFormat, PreparedImage};
 

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use hw_mock::Scenario;
 
-use crate::clock::SharedClock;
+use crate::os_clock::SharedClock;
 use flyd_core::can::MessageConfig;
 use flyd_core::can::bus::{BusError, CanReceiver, ReceivedFrame};
 use flyd_core::can::messages::{AliveCounter, CanMessage, MotionMsg};
@@ -80,7 +80,7 @@ impl CanReceiver for MockVehicle {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use flyd_core::can::motion::{MotionConfig, MotionMonitor};
+    use flyd_core::can::motion_monitor::{MotionConfig, MotionMonitor};
     use flyd_core::clock::{Clock, ManualClock};
     use std::sync::Arc;
 

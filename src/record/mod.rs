@@ -23,11 +23,11 @@
 //! the speed and latency then, every command with its faults, and every CAN frame. The
 //! configuration's text is attached (`config.toml`).
 
-pub mod bus;
 mod live;
 mod mcap_file;
 pub mod options;
 pub mod read;
+pub mod recording_bus;
 mod scene;
 pub mod topics;
 pub mod writer;

@@ -8,8 +8,8 @@
 use std::path::Path;
 use std::time::Duration;
 
-use flyd_core::can::motion::{MotionConfig, MotionCounters, MotionMonitor};
-use flyd_core::motion::VehicleMotion;
+use flyd_core::can::motion_monitor::{MotionConfig, MotionCounters, MotionMonitor};
+use flyd_core::kinematics::VehicleMotion;
 
 use super::ReplayError;
 use crate::bus::CandumpReplayRx;

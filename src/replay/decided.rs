@@ -10,7 +10,7 @@ use flyd_core::decision::Command;
 use flyd_core::geometry::StereoRig;
 use flyd_core::path::{PathEstimate, PredictedPath};
 use flyd_core::perception::{Obstacle, Perception, PerceptionReport};
-use flyd_core::road::RoadPlane;
+use flyd_core::road_plane::RoadPlane;
 use image::{Rgb, RgbImage};
 use nalgebra::Point3;
 

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use flyd_core::calib::Calibration;
 use flyd_core::frame::{PixelFormat, StereoFrame};
 use flyd_core::geometry::StereoRig;
-use flyd_core::motion::VehicleMotion;
+use flyd_core::kinematics::VehicleMotion;
 use image::RgbImage;
 
 use super::{LoadedImage, ReplayError, load_image};

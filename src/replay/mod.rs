@@ -9,7 +9,7 @@
 //!
 //! Outputs, in the output directory ([`output`]):
 //! - `road_points.csv`: the road measurement's points on the last new frame (see
-//!   [`flyd_core::perception::road`]): `x,y,z,fitness,ambiguity,u_left,v_left,used,residual`;
+//!   [`flyd_core::perception::road_estimator`]): `x,y,z,fitness,ambiguity,u_left,v_left,used,residual`;
 //! - `flies.csv`: one fly a row, `x,y,z,fitness,warning,u_left,v_left,u_right,v_right,
 //!   raw_fitness,ambiguity` (metres, pixels; `fitness` is the value selection ranks by, after
 //!   the region of interest and sharing; `raw_fitness` before sharing, what `warning` is
@@ -479,7 +479,7 @@ impl ReplayRecording {
         frame: &StereoFrame,
         at: Duration,
         generation: u64,
-        predicted: Option<(flyd_core::motion::VehicleMotion, f64)>,
+        predicted: Option<(flyd_core::kinematics::VehicleMotion, f64)>,
     ) {
         use crate::source::Side;
         for (side, image) in [(Side::Left, &frame.left), (Side::Right, &frame.right)] {
@@ -635,7 +635,7 @@ pub fn load_image(path: &Path) -> Result<LoadedImage, ReplayError> {
 mod tests {
     use super::*;
     use flyd_core::perception::RoadEstimate;
-    use flyd_core::road::RoadPlane;
+    use flyd_core::road_plane::RoadPlane;
 
     fn trace(warnings: &[f64], frames_from: u64) -> Vec<TraceRow> {
         warnings

@@ -7,7 +7,7 @@
 //! interval the yaw rate (positive turning left, as `VCU_Motion` reports it). The camera is
 //! taken as looking along the vehicle's axis (KITTI's are, within a degree).
 
-use flyd_core::motion::VehicleMotion;
+use flyd_core::kinematics::VehicleMotion;
 use nalgebra::{Matrix3, Vector3};
 
 /// Why a poses file cannot be read.

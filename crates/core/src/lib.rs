@@ -20,13 +20,13 @@ pub mod faults;
 pub mod frame;
 pub mod geometry;
 pub mod isa;
-pub mod motion;
+pub mod kinematics;
 pub mod pairing;
 pub mod path;
 pub mod perception;
 pub mod policy;
 pub mod rectification;
-pub mod road;
+pub mod road_plane;
 pub mod sensor;
 pub mod status;
 #[cfg(any(test, feature = "test-support"))]

@@ -5,7 +5,7 @@
 //!
 //! Vehicle frame: x right, z ahead; yaw rate positive turning left ([`VehicleMotion`]).
 
-use crate::motion::VehicleMotion;
+use crate::kinematics::VehicleMotion;
 
 /// The tightest the path bends, 1/m: a 5 m radius, about a car's turning circle. A larger
 /// curvature (a yaw rate at walking pace, a noisy one at standstill) is clamped to it.

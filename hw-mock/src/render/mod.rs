@@ -18,11 +18,11 @@ use crate::RayCamera;
 use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
 use crate::world::{Ray, Sample, Scene, background, trace_scene};
 
-mod sensor;
+mod sensor_model;
 mod tile;
 
-pub use sensor::{Response, SensorModel};
-use sensor::{apply_sensor, noise_field, response_table};
+pub use sensor_model::{Response, SensorModel};
+use sensor_model::{apply_sensor, noise_field, response_table};
 use tile::{TILE, Tile, in_vehicle_frame, tile_cone};
 
 /// Why a render could not be done. Rendering never panics; it reports these instead.

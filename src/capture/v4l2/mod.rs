@@ -292,9 +292,9 @@ pub(crate) fn open_error(device: &str, op: &str, e: &io::Error) -> SourceError {
     }
 }
 
-/// CLOCK_MONOTONIC, the buffers' timebase: read in one place ([`crate::clock::MonotonicClock`]).
+/// CLOCK_MONOTONIC, the buffers' timebase: read in one place ([`crate::os_clock::MonotonicClock`]).
 fn monotonic_now() -> Duration {
-    use crate::clock::{Clock, MonotonicClock};
+    use crate::os_clock::{Clock, MonotonicClock};
     MonotonicClock.now()
 }
 

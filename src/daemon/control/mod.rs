@@ -13,7 +13,7 @@
 //!   confirmed obstacle, the highest global warning; a spike between two commands is not lost,
 //!   releases stay conservative), or the newest snapshot's when none arrived;
 //! - the vehicle's speed: the measured one while `VCU_Motion` is trusted
-//!   ([`flyd_core::can::motion::MotionMonitor`]: CRC, counter, age, plausibility), else the
+//!   ([`flyd_core::can::motion_monitor::MotionMonitor`]: CRC, counter, age, plausibility), else the
 //!   configured highest (`vehicle.assumed_speed_kmh`) with `FLYD_Status.MotionFault` set;
 //! - the current fault bits: any fault makes the decider fall back to its safe command.
 //!
@@ -48,13 +48,13 @@ use super::notify::ServiceNotifier;
 use super::ring::RingCounters;
 use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
-use crate::clock::SharedClock;
+use crate::os_clock::SharedClock;
 use crate::record::Observed;
 use crate::record::topics::{InputFrom, StatsEvent};
 use crate::thread::Shutdown;
 use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
 use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg, StatusMsg};
-use flyd_core::can::motion::{MotionFault, MotionMonitor};
+use flyd_core::can::motion_monitor::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
@@ -65,7 +65,7 @@ use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
 mod frames;
-mod motion;
+mod motion_rx;
 
 /// The next recorded event's number.
 fn next_seq(s: &mut Loop) -> u64 {

@@ -19,10 +19,10 @@
 //!
 //! | bits   | signal           | type | scale              | range |
 //! |--------|------------------|------|--------------------|-------|
-//! | 12..16 | `Command`        | u4   | enum [`Command`]   | 0..=2 |
+//! | 12..16 | `Command`        | u4   | enum [`Command`](crate::decision::Command) | 0..=2 |
 //! | 16..32 | `RequestedDecel` | u16  | 0.01 m/s²          | 0..=655.35 |
 //! | 32..48 | `GlobalWarning`  | u16  | 0.001 (no unit)    | 0..=65.534; raw 0xFFFF = invalid (NaN) |
-//! | 48..52 | `CommandReason`  | u4   | enum [`CommandReason`] | 0..=2 |
+//! | 48..52 | `CommandReason`  | u4   | enum [`CommandReason`](crate::decision::CommandReason) | 0..=2 |
 //!
 //! `FLYD_Status` (default ID 0x121, Data ID 0x0121, every 20 ms):
 //!
@@ -77,7 +77,6 @@ use std::time::Duration;
 use thiserror::Error;
 
 use super::crc::e2e_crc;
-use crate::decision::{Command, CommandReason, Decision};
 use crate::perception::{RoadEstimate, Tracked};
 use crate::sensor::SensorFaults;
 use crate::status::{FaultBits, State};
@@ -262,16 +261,6 @@ mod layout {
     use super::Field;
 
     pub const COUNTER: Field = Field { start: 8, len: 4 };
-
-    pub mod command {
-        use super::Field;
-        pub const COMMAND: Field = Field { start: 12, len: 4 };
-        pub const DECEL: Field = Field { start: 16, len: 16 };
-        pub const DECEL_PER_UNIT: f64 = 100.0;
-        pub const WARNING: Field = Field { start: 32, len: 16 };
-        pub const WARNING_PER_UNIT: f64 = 1000.0;
-        pub const REASON: Field = Field { start: 48, len: 4 };
-    }
 }
 
 /// Puts the counter in, then the CRC over Data ID + bytes 1..=7 into byte 0.
@@ -343,95 +332,24 @@ macro_rules! default_codec {
     };
 }
 
-/// `FLYD_Command`: the request to the vehicle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CommandMsg {
-    pub command: Command,
-    /// Requested deceleration magnitude, m/s² (>= 0).
-    pub requested_decel: f64,
-    /// The global warning the command was decided from (dimensionless); NaN = invalid.
-    pub global_warning: f64,
-    pub reason: CommandReason,
-}
+// One file a message, named after it: its layout, its fields and its codec over the framing
+// above.
+mod flyd_command;
+mod flyd_obstacle;
+mod flyd_path;
+mod flyd_status;
+mod vcu_motion;
 
-impl CommandMsg {
-    /// The frame content for `decision`, decided on `global_warning`.
-    pub fn of(decision: &Decision, global_warning: f64) -> Self {
-        Self {
-            command: decision.command,
-            requested_decel: decision.requested_decel,
-            global_warning,
-            reason: decision.reason,
-        }
-    }
-
-    /// Largest `GlobalWarning` that can be sent; larger values saturate to it.
-    pub const GLOBAL_WARNING_MAX: f64 = 65.534;
-    /// Raw `GlobalWarning` meaning "invalid" (NaN).
-    pub const GLOBAL_WARNING_INVALID_RAW: u16 = 0xFFFF;
-}
-
-impl CanMessage for CommandMsg {
-    const NAME: &'static str = "FLYD_Command";
-    const DEFAULT_ID: u32 = 0x120;
-    const DEFAULT_DATA_ID: u16 = 0x0120;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
-
-    fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
-        use layout::command::*;
-        let mut w = 0u64;
-        COMMAND.put(&mut w, u64::from(self.command.raw()));
-        DECEL.put(
-            &mut w,
-            to_raw_unsigned(
-                self.requested_decel,
-                DECEL_PER_UNIT,
-                DECEL.max_unsigned(),
-                0,
-            ),
-        );
-        let invalid = u64::from(Self::GLOBAL_WARNING_INVALID_RAW);
-        WARNING.put(
-            &mut w,
-            to_raw_unsigned(self.global_warning, WARNING_PER_UNIT, invalid - 1, invalid),
-        );
-        REASON.put(&mut w, u64::from(self.reason.raw()));
-        seal(w, counter, data_id)
-    }
-
-    fn decode_with(data: &[u8], data_id: u16) -> Result<(Self, AliveCounter), DecodeError> {
-        use layout::command::*;
-        let (w, counter) = unseal(data, data_id)?;
-        let warning_raw = WARNING.get(w);
-        let global_warning = if warning_raw == u64::from(Self::GLOBAL_WARNING_INVALID_RAW) {
-            f64::NAN
-        } else {
-            warning_raw as f64 / WARNING_PER_UNIT
-        };
-        let msg = Self {
-            command: decode_enum(COMMAND.get(w), "Command", Command::from_raw)?,
-            requested_decel: DECEL.get(w) as f64 / DECEL_PER_UNIT,
-            global_warning,
-            reason: decode_enum(REASON.get(w), "CommandReason", CommandReason::from_raw)?,
-        };
-        Ok((msg, counter))
-    }
-}
-default_codec!(CommandMsg);
-
-mod motion;
-mod obstacle;
-mod path;
-mod status;
-
-pub use motion::MotionMsg;
-pub use obstacle::ObstacleMsg;
-pub use path::PathMsg;
-pub use status::StatusMsg;
+pub use flyd_command::CommandMsg;
+pub use flyd_obstacle::ObstacleMsg;
+pub use flyd_path::PathMsg;
+pub use flyd_status::StatusMsg;
+pub use vcu_motion::MotionMsg;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::decision::{Command, CommandReason};
 
     #[test]
     fn command_msg_carries_the_decision() {

@@ -7,7 +7,7 @@
 //! | `FLYD_Command`  | 0x120 | 0x0120 | 20 ms  | CLEAR / SLOW / STOP, deceleration, global warning, reason |
 //! | `FLYD_Status`   | 0x121 | 0x0121 | 20 ms  | state, fault bits, perception age, rates |
 //! | `FLYD_Obstacle` | 0x122 | 0x0122 | 100 ms | nearest relevant obstacle |
-//! | `VCU_Motion` (received) | 0x110 | 0x0110 | 20 ms | the vehicle's speed and yaw rate ([`motion`]) |
+//! | `VCU_Motion` (received) | 0x110 | 0x0110 | 20 ms | the vehicle's speed and yaw rate ([`motion_monitor`]) |
 //!
 //! Every frame: 8 bytes, byte 0 = CRC-8 SAE J1850 over (Data ID lo, Data ID hi, bytes 1..=7),
 //! byte 1 low nibble = alive counter 0..=14 (AUTOSAR E2E profile 1 style). IDs, Data IDs and
@@ -18,14 +18,14 @@
 //! - [`bus`]: the [`bus::CanBus`] trait, SocketCAN / candump-log / in-memory backends, error
 //!   classes (retryable vs fatal).
 //! - [`candump`]: the `candump -l` line format, both ways.
-//! - [`motion`]: the vehicle's `VCU_Motion` frames checked (E2E, counter, age, plausibility)
+//! - [`motion_monitor`]: the vehicle's `VCU_Motion` frames checked (E2E, counter, age, plausibility)
 //!   before their motion is trusted.
 
 pub mod bus;
 pub mod candump;
 pub mod crc;
 pub mod messages;
-pub mod motion;
+pub mod motion_monitor;
 
 use std::time::Duration;
 

@@ -182,7 +182,7 @@ impl EgoFlow {
         project: impl Fn(f32, f32, f32) -> Option<(f32, f32)>,
     ) -> &[f32] {
         let [height, slope_z, slope_x] = road;
-        let ego = crate::motion::EgoTransform::new(travelled, turned);
+        let ego = crate::kinematics::EgoTransform::new(travelled, turned);
         let block = BLOCK as f32;
         for (out, ray) in self.predicted.iter_mut().zip(&self.rays) {
             *out = f32::NAN;

@@ -33,7 +33,7 @@ use super::trunc::trunc;
 use super::windows::{Windows, mask, mask_bits, mask16};
 use crate::frame::{BPP, NORMALISED_STD, PreparedImage, StereoFrame};
 use crate::isa::{Isa, dispatch};
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 use std::ops::Range;
 
 /// Constant factor of every fitness. It changes no ranking; it puts the global warning on the

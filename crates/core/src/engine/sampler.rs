@@ -23,7 +23,7 @@ pub(super) struct Sampler {
     /// inside it.
     heights: Option<(f32, f32)>,
     /// The road the heights are measured from: `[height, slope_z, slope_x]`
-    /// ([`crate::road::RoadPlane`]).
+    /// ([`crate::road_plane::RoadPlane`]).
     pub(super) road: [f32; 3],
     /// Vehicle from left camera: `p_vehicle = m * p_cam + c`.
     m: [f32; 9],

@@ -16,7 +16,7 @@ use super::fitness::Kernel;
 use super::sampler::lerp;
 use super::{Engine, EngineError, Population};
 use crate::frame::StereoFrame;
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 
 /// What to sweep.
 #[derive(Debug, Clone, Copy, PartialEq)]

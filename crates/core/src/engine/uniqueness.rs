@@ -17,7 +17,7 @@
 use super::fitness::Kernel;
 use super::{Engine, EngineError, Population};
 use crate::frame::StereoFrame;
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 
 /// Disparity offsets (pixels) at which a fly's left pixel is compared again.
 pub const SHIFTS: [f32; 4] = [-4.0, -2.0, 2.0, 4.0];

@@ -2,7 +2,7 @@
 //! obstacle in the corridor.
 //!
 //! [`Perception`] owns the engine (the paper's population, whose region of interest is
-//! measured from the road), the road estimator ([`road`]), the obstacle stage ([`obstacle`])
+//! measured from the road), the road estimator ([`road_estimator`]), the obstacle stage ([`obstacle`])
 //! and its debounce ([`track`]). One [`Perception::step`] is one generation; on the first
 //! generation of each new frame the road is measured and the engine takes it; on every
 //! `estimate_every`-th generation (and each new frame's first) the obstacle stage looks at the
@@ -13,7 +13,7 @@
 pub mod dense;
 pub mod obstacle;
 pub mod range;
-pub mod road;
+pub mod road_estimator;
 pub mod track;
 
 use serde::{Deserialize, Serialize};
@@ -22,7 +22,7 @@ pub use obstacle::{
     CorridorCounts, Obstacle, ObstacleConfig, ObstacleFinder, PathKind, PerceptionParamError,
 };
 pub use range::{Resolution, SearchReach};
-pub use road::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
+pub use road_estimator::{RoadConfig, RoadEstimate, RoadEstimator, RoadSource};
 pub use track::{TrackConfig, Tracked, Tracker};
 
 use crate::decision::{DecisionConfig, DecisionMode};
@@ -30,7 +30,7 @@ use crate::engine::{Corridor, Engine, EngineError, EngineParams, GenerationStats
 use crate::frame::StereoFrame;
 use crate::geometry::StereoRig;
 use crate::path::{PathEstimate, PathEstimator};
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 
 /// The `[perception]` settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -303,7 +303,7 @@ impl Perception {
     /// and what it finds must also be on the arc of the moment ([`PathEstimator`],
     /// [`PathEstimate`]). A frame not preceded by a prediction (no trusted motion) has a
     /// straight corridor, and the hold starts again after it.
-    pub fn predict(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
+    pub fn predict(&mut self, motion: crate::kinematics::VehicleMotion, dt: f64) {
         self.engine.predict(motion, dt);
         self.tracker.moved(motion.speed * dt, dt);
         self.follow(motion, dt);
@@ -312,7 +312,7 @@ impl Perception {
     /// The vehicle's motion over the `dt` seconds before the next frame, for its path only
     /// (the flies stay where they are: `vehicle.predict_flies = false`); [`Perception::predict`]
     /// does this too.
-    pub fn follow(&mut self, motion: crate::motion::VehicleMotion, dt: f64) {
+    pub fn follow(&mut self, motion: crate::kinematics::VehicleMotion, dt: f64) {
         if self.config.obstacle.follow_path {
             self.predicted_path = Some(self.path_estimator.update(motion, dt));
         }
@@ -327,7 +327,7 @@ impl Perception {
     pub fn motion_unknown(&mut self, speed: f64) {
         let o = &self.config.obstacle;
         self.pending_fan = o.follow_path.then(|| {
-            crate::path::PredictedPath::of_motion(crate::motion::VehicleMotion {
+            crate::path::PredictedPath::of_motion(crate::kinematics::VehicleMotion {
                 speed: speed.abs(),
                 yaw_rate: o.fault_yaw_rate,
             })
@@ -344,7 +344,7 @@ impl Perception {
     /// `assumed_speed`.
     pub fn vehicle_moved(
         &mut self,
-        motion: Option<crate::motion::VehicleMotion>,
+        motion: Option<crate::kinematics::VehicleMotion>,
         dt: f64,
         predict_flies: bool,
         assumed_speed: f64,

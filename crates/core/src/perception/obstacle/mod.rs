@@ -75,7 +75,7 @@ use serde::Serialize;
 use crate::engine::{Engine, EngineError};
 use crate::frame::StereoFrame;
 use crate::path::PredictedPath;
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 
 mod cluster;
 mod config;

@@ -16,7 +16,7 @@ mod layout {
 
 /// `VCU_Motion`: the vehicle's own motion, sent by the vehicle (VCU) and received by flyd.
 ///
-/// flyd decodes it ([`crate::can::motion::MotionMonitor`] checks it further: counter, age,
+/// flyd decodes it ([`crate::can::motion_monitor::MotionMonitor`] checks it further: counter, age,
 /// plausibility); it encodes it too, as the mock vehicle and the tests send it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MotionMsg {

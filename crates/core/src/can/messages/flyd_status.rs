@@ -30,7 +30,7 @@ pub struct StatusMsg {
     /// Which sensor checks failed ([`crate::sensor`]); any of them also sets `CAMERA_ERROR`.
     pub sensor: SensorFaults,
     /// The vehicle's motion is not known (missing, stale, invalid or implausible `VCU_Motion`,
-    /// [`crate::motion`]): the decision assumes the configured highest speed.
+    /// [`crate::kinematics`]): the decision assumes the configured highest speed.
     pub motion_fault: bool,
     /// Evolution rate, generations per second (resolution 2, saturates at 510).
     pub generations_per_sec: f64,

@@ -26,7 +26,7 @@
 use std::time::Duration;
 
 use super::messages::{AliveCounter, CanMessage, DecodeError, MotionMsg};
-use crate::motion::VehicleMotion;
+use crate::kinematics::VehicleMotion;
 
 /// Fastest plausible forward speed, m/s (270 km/h): beyond, a frame is rejected.
 pub const MAX_FORWARD_SPEED: f64 = 75.0;

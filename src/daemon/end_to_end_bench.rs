@@ -19,9 +19,9 @@ use serde::Serialize;
 
 use super::{DaemonError, Shutdown, run, spawn_named};
 use crate::bus::MemoryBus;
-use crate::clock::{MonotonicClock, SharedClock};
 use crate::config::{CameraSource, DaemonConfig};
 use crate::mock::camera::mock_cameras;
+use crate::os_clock::{MonotonicClock, SharedClock};
 use flyd_core::can::messages::{CanMessage, CommandMsg};
 use flyd_core::decision::Command;
 

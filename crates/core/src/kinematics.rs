@@ -3,7 +3,7 @@
 //! engine's prediction and the obstacle tracking need.
 //!
 //! Where the motion comes from is not this module's concern: the vehicle's `VCU_Motion` frames
-//! are decoded and checked before they are trusted in [`crate::can::motion`].
+//! are decoded and checked before they are trusted in [`crate::can::motion_monitor`].
 
 /// The vehicle's motion in flyd's vehicle frame.
 #[derive(Debug, Clone, Copy, PartialEq)]

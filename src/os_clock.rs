@@ -1,4 +1,5 @@
-//! The daemon's time: one injected [`Clock`] shared by all threads.
+//! The daemon's time, from the operating system's clocks: one injected [`Clock`] shared by all
+//! threads.
 //!
 //! Frame timestamps ([`crate::source::FrameMeta::timestamp`]) and the daemon clock must share a
 //! timebase, since the control thread compares them (perception age, reaction time). V4L2 stamps

@@ -3,7 +3,7 @@
 use flyd_core::can::bus::{BusError, CanBus};
 
 use super::Recorder;
-use crate::clock::SharedClock;
+use crate::os_clock::SharedClock;
 
 /// A bus that hands every frame it accepted to the recorder (`/can/tx`), at the clock's time.
 pub struct RecordingBus {

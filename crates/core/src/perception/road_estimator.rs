@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use super::obstacle::PerceptionParamError;
 use crate::engine::{Engine, EngineError, Sweep, SweepPoint};
 use crate::frame::StereoFrame;
-use crate::road::RoadPlane;
+use crate::road_plane::RoadPlane;
 
 /// The road estimator's settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
