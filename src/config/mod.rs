@@ -18,18 +18,16 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use crate::capture::CaptureFormat;
-use crate::mock::camera::{MAX_MOCK_FAULTS, MockFault};
+use crate::mock::camera::MockFault;
 use flyd_core::calib::{self, CalibError, Calibration};
 use flyd_core::can::CanConfig;
 use flyd_core::can::motion_monitor::MotionConfig;
-use flyd_core::decision::Command;
-use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
-use flyd_core::engine::{Engine, EngineError, EngineParams};
+use flyd_core::decision::DecisionConfig;
+use flyd_core::engine::EngineParams;
 use flyd_core::frame::PixelFormat;
 use flyd_core::geometry::StereoRig;
-use flyd_core::perception::{PerceptionConfig, Resolution};
+use flyd_core::perception::PerceptionConfig;
 use flyd_core::sensor::SensorConfig;
-use flyd_core::status::FaultBits;
 
 /// Why a configuration cannot be used.
 #[derive(Debug, Error)]

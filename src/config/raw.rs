@@ -6,7 +6,17 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::*;
+use super::{
+    CalibrationSource, CameraSource, CanSection, CanTarget, ControlConfig, DaemonConfig,
+    EvolutionConfig, LogFormat, LoggingConfig, MotionInput, VehicleConfig,
+};
+use flyd_core::can::CanConfig;
+use flyd_core::decision::Command;
+use flyd_core::decision::{DecisionConfig, DecisionConfigError, DecisionMode};
+use flyd_core::engine::EngineParams;
+use flyd_core::perception::PerceptionConfig;
+use flyd_core::sensor::SensorConfig;
+use flyd_core::status::FaultBits;
 
 mod cameras;
 mod record;

@@ -2,7 +2,13 @@
 //! `flyd run` both call): the configuration, the calibration, an engine built on them, the
 //! ranges against the SLOW distance, and how well the rig resolves it.
 
-use super::*;
+use std::path::Path;
+
+use super::{ConfigError, DaemonConfig};
+use flyd_core::decision::{Command, DecisionMode};
+use flyd_core::engine::{Engine, EngineError};
+use flyd_core::geometry::StereoRig;
+use flyd_core::perception::Resolution;
 
 impl DaemonConfig {
     /// In the obstacle mode, how well `rig` resolves the SLOW distance at

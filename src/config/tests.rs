@@ -1,4 +1,5 @@
 use super::*;
+use flyd_core::decision::DecisionMode;
 
 const MINIMAL: &str = r#"
 [cameras]

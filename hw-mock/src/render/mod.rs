@@ -15,7 +15,6 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
-use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
 use crate::world::{Ray, Sample, Scene, background, trace_scene};
 
 mod sensor_model;

@@ -1,6 +1,7 @@
 //! The camera's sensor: its radiometric response and noise, applied to a rendered frame.
 
-use super::*;
+use super::RenderError;
+use crate::noise::{GAUSS_TABLE_LEN, GOLDEN_GAMMA, gaussian_table, splitmix64};
 
 /// Linear radiometric response of one camera: `out = gain * in + offset` (grey levels).
 #[derive(Debug, Clone, Copy, PartialEq)]

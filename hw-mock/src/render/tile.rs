@@ -1,7 +1,8 @@
 //! Culling: pixel tiles that share one cone of rays, and the props' bounds in the vehicle
 //! frame they are tested against.
 
-use super::*;
+use super::StoredRay;
+use crate::world::{Ray, Scene};
 
 /// Pixel tiles share one culling cone.
 pub(super) const TILE: u32 = 16;

@@ -7,7 +7,7 @@
 //! relies on. The only view-dependent effect, texture prefiltering against aliasing, is computed
 //! for a fixed nominal viewpoint ([`NOMINAL_EYE`], [`NOMINAL_FOCAL_PX`]) for the same reason.
 
-use crate::noise::{band_coverage, fbm, floor, lattice, periodic_coverage, value_noise};
+use crate::noise::{band_coverage, fbm, periodic_coverage, value_noise};
 
 /// Half the width of the vehicle's lane: lane marks are centred on x = +-1.75 m.
 pub const LANE_HALF_WIDTH: f64 = 1.75;

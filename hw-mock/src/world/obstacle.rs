@@ -2,7 +2,8 @@
 //! along a road of changing curvature), their materials and patterns, and the ray
 //! intersections the renderer traces them with.
 
-use super::*;
+use super::shading::finish;
+use super::{NOMINAL_EYE, Ray, T_MIN, bend, footprint, norm, profile, sub};
 
 /// How a surface is textured. Coordinates are object-local (see [`Obstacle`]).
 #[derive(Debug, Clone, Copy, PartialEq)]

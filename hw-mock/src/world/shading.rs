@@ -1,7 +1,10 @@
 //! Shading: light, the obstacles' materials (clothes, cars, bricks, facades) and the final
 //! sample, each a pure function of the surface point.
 
-use super::*;
+use super::{
+    Face, HAZE_DISTANCE, Hit, Material, Pattern, SKY_HORIZON, Sample, dot, lerp3, rgb, scale3,
+};
+use crate::noise::{band_coverage, fbm, floor, lattice, periodic_coverage};
 
 /// Lambertian light: ambient plus a sun up, to the right and behind the vehicle, so faces that
 /// look at the cameras are lit and different faces of a box differ in brightness. Depends only

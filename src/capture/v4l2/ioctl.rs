@@ -2,7 +2,12 @@
 //! and frame rate. Nothing here is reachable without a V4L2 node (the VM suite's vivid and
 //! v4l2loopback devices exercise it).
 
-use super::*;
+use super::{CAP_TIMEPERFRAME, FIELD_NONE, Negotiated, V4l2Config};
+use std::io;
+use std::os::raw::{c_int, c_void};
+use v4l::buffer::Type as BufferType;
+use v4l::v4l_sys;
+use v4l::v4l2::vidioc;
 
 // --- Raw ioctls (the device layer; nothing here is reachable without a V4L2 node) ---------------
 

@@ -27,20 +27,13 @@
 //! not know and `unwrap()` the UTF-8 of card names (a USB product name cut at 32 bytes can split
 //! a character).
 
-use super::convert::{CaptureFormat, ConvertError, FrameConverter, fourcc_str};
+use super::convert::{CaptureFormat, fourcc_str};
 use crate::source::{FrameMeta, FrameSource, SourceError};
 use flyd_core::chain::Chain;
 use flyd_core::frame::{PixelFormat, PreparedImage};
 use std::io;
-use std::os::raw::{c_int, c_void};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
-use v4l::buffer::{Metadata, Type as BufferType};
-use v4l::device::Device;
-use v4l::io::mmap::Stream as MmapStream;
-use v4l::io::traits::{CaptureStream, Stream as _};
-use v4l::v4l_sys;
-use v4l::v4l2::vidioc;
+use std::time::Duration;
 
 /// Buffers in the mmap ring. Four lets the driver fill while we convert, without queueing so
 /// many that a frame waits behind stale ones.
@@ -415,6 +408,8 @@ mod tests {
     use super::stream::{BufferQueue, wait_for_buffer};
     use super::*;
     use std::path::Path;
+    use std::time::Instant;
+    use v4l::buffer::Metadata;
 
     fn config(device: &str) -> V4l2Config {
         V4l2Config {

@@ -2,7 +2,19 @@
 //! and streaming device ([`Streaming`]) that turns each buffer into a prepared frame.
 
 use super::ioctl::{query_capabilities, set_format, set_frame_rate};
-use super::*;
+use super::{
+    BUF_FLAG_ERROR, BUFFERS, V4l2Config, check_capabilities, check_format, check_frame_rate,
+    classify, frame_timestamp, monotonic_now, open_error, payload, poll_timeout, retry_in_place,
+};
+use crate::capture::convert::{ConvertError, FrameConverter};
+use crate::source::{FrameMeta, SourceError};
+use flyd_core::frame::{PixelFormat, PreparedImage};
+use std::io;
+use std::time::{Duration, Instant};
+use v4l::buffer::{Metadata, Type as BufferType};
+use v4l::device::Device;
+use v4l::io::mmap::Stream as MmapStream;
+use v4l::io::traits::{CaptureStream, Stream as _};
 
 // --- Waiting for a buffer -------------------------------------------------------------------------
 

@@ -1,9 +1,14 @@
 //! The raw `[cameras]` table: the devices or the mock scenario, image size, frame rate, pixel
 //! format, channels, pairing tolerance, staleness and the mock's injected faults.
 
+use std::path::PathBuf;
+
 use serde::Deserialize;
 
-use super::*;
+use super::{Invalid, bad, millis};
+use crate::capture::CaptureFormat;
+use crate::config::{CameraSource, CamerasConfig, Channels};
+use crate::mock::camera::{MAX_MOCK_FAULTS, MockFault};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]

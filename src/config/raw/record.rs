@@ -2,10 +2,12 @@
 //! Foxglove live server's address.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::*;
+use super::{Invalid, bad};
+use crate::config::{LiveConfig, RecordConfig};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]

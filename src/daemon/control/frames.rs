@@ -1,7 +1,15 @@
 //! The frames the control thread sends: `FLYD_Command` (the decision each period, an
 //! escalation at once), `FLYD_Status`, and what a write's result does to CAN_TX_ERROR.
 
-use super::*;
+use std::time::Duration;
+
+use super::{ControlThread, Loop};
+use flyd_core::can::bus::{BusError, CanBus};
+use flyd_core::can::messages::{CommandMsg, StatusMsg};
+use flyd_core::decision::Command;
+use flyd_core::perception::RoadSource;
+use flyd_core::policy::InputSource;
+use flyd_core::status::State;
 
 impl<B: CanBus> ControlThread<B> {
     pub(super) fn send_command(&mut self, s: &mut Loop, now: Duration) {

@@ -52,15 +52,15 @@ use crate::os_clock::SharedClock;
 use crate::record::Observed;
 use crate::record::topics::{InputFrom, StatsEvent};
 use crate::thread::Shutdown;
-use flyd_core::can::bus::{BusError, CanBus, CanReceiver};
-use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg, StatusMsg};
+use flyd_core::can::bus::{CanBus, CanReceiver};
+use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg};
 use flyd_core::can::motion_monitor::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
 use flyd_core::decision::{Decider, DecisionInput};
 use flyd_core::faults::{FaultMonitor, Observation};
 use flyd_core::perception::RoadSource;
-use flyd_core::policy::{InputSource, PeriodInput};
+use flyd_core::policy::PeriodInput;
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 

@@ -1,7 +1,11 @@
 //! What the vehicle sends: `VCU_Motion` read without blocking into the motion monitor, the
 //! speed the stopping distances use, and the transitions logged.
 
-use super::*;
+use std::time::Duration;
+
+use super::{ControlThread, Loop, MAX_RX_PER_TURN, next_seq};
+use flyd_core::can::bus::CanBus;
+use flyd_core::decision::Command;
 
 impl<B: CanBus> ControlThread<B> {
     /// Where the decision's speed comes from, for the logs.

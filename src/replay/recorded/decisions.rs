@@ -2,7 +2,22 @@
 //! the replayed perception's outcomes, through the decider each command period as the daemon's
 //! control thread did (`flyd_core::policy`), each command compared with the recorded one.
 
-use super::*;
+use std::time::Duration;
+
+use super::{Outcome, RecordedSummary};
+use crate::bus::MemoryBus;
+use crate::config::DaemonConfig;
+use crate::record::nanos;
+use crate::record::read::ControlEvent;
+use crate::record::topics::InputFrom;
+use crate::replay::ReplayError;
+use flyd_core::can::Transmitter;
+use flyd_core::can::messages::CommandMsg;
+use flyd_core::can::motion_monitor::MotionMonitor;
+use flyd_core::clock::ManualClock;
+use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::policy::{PeriodInput, untrusted};
+use flyd_core::status::FaultBits;
 
 /// Same bits, for the comparison of a replayed value with a recorded one; JSON keeps no NaN
 /// or infinity (they are recorded as null, read back as NaN), so any two non-finite values

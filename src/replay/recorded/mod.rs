@@ -20,29 +20,23 @@
 //!
 //! Sensor faults and the other fault bits are inputs here (recorded per command), as the
 //! clock is; they are not re-derived.
+//!
+//! [`Decider`]: flyd_core::decision::Decider
+//! [`MotionMonitor`]: flyd_core::can::motion_monitor::MotionMonitor
 
 use std::collections::VecDeque;
 use std::path::Path;
 use std::time::Duration;
 
-use crate::bus::MemoryBus;
 use crate::capture::{CaptureFormat, FrameConverter};
 use crate::config::DaemonConfig;
-use crate::record::nanos;
 use crate::record::read::{ControlEvent, Frame, Recording};
-use crate::record::topics::{InputFrom, PairEvent};
+use crate::record::topics::PairEvent;
 use crate::replay::ReplayError;
 use crate::source::Side;
-use flyd_core::can::Transmitter;
-use flyd_core::can::messages::CommandMsg;
-use flyd_core::can::motion_monitor::MotionMonitor;
-use flyd_core::clock::ManualClock;
-use flyd_core::decision::{Decider, DecisionInput};
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::kinematics::VehicleMotion;
 use flyd_core::perception::Perception;
-use flyd_core::policy::{PeriodInput, untrusted};
-use flyd_core::status::FaultBits;
 
 mod decisions;
 

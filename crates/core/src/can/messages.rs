@@ -71,15 +71,16 @@
 //! [`CanMessage::decode_with`] checks, in this order: length 8, CRC (with the expected Data ID),
 //! alive counter in 0..=14, enum signals in range, `Confidence` <= 100. The receiver-side counter
 //! check (repetition, loss) is the caller's business: it gets the counter back.
+//!
+//! [`State`]: crate::status::State
+//! [`FaultBits`]: crate::status::FaultBits
+//! [`SensorFaults`]: crate::sensor::SensorFaults
 
 use std::time::Duration;
 
 use thiserror::Error;
 
 use super::crc::e2e_crc;
-use crate::perception::{RoadEstimate, Tracked};
-use crate::sensor::SensorFaults;
-use crate::status::{FaultBits, State};
 
 /// Every flyd frame is classic CAN with 8 data bytes.
 pub const FRAME_LEN: usize = 8;
@@ -350,6 +351,8 @@ pub use vcu_motion::MotionMsg;
 mod tests {
     use super::*;
     use crate::decision::{Command, CommandReason};
+    use crate::sensor::SensorFaults;
+    use crate::status::{FaultBits, State};
 
     #[test]
     fn command_msg_carries_the_decision() {

@@ -2,7 +2,11 @@
 //! normalisation (16.16 fixed point, the same bytes on every instruction set), luma, the
 //! right image's row shift, Sobel gradient norms, the replicated border and the block means.
 
-use super::*;
+use super::{
+    BLOCK, BPP, GRADIENT_SCALE, NORMALISED_MEAN, NORMALISED_STD, PAD, PixelFormat, PreparedImage,
+    RawStats,
+};
+use crate::isa::Isa;
 
 /// The stored gradient byte of Sobel responses `gx`, `gy`: `round(|g| / 4)`, saturating.
 #[inline(always)]

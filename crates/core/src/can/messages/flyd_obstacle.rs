@@ -1,7 +1,12 @@
 //! `FLYD_Obstacle`: the nearest obstacle in the corridor, built from perception's debounced
 //! obstacle and road.
 
-use super::*;
+use std::time::Duration;
+
+use super::{
+    AliveCounter, CanMessage, DecodeError, FRAME_LEN, seal, to_raw_signed, to_raw_unsigned, unseal,
+};
+use crate::perception::{RoadEstimate, Tracked};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
 mod layout {
@@ -26,6 +31,8 @@ pub struct ObstacleMsg {
     /// `false`: no obstacle; the obstacle's fields are sent as 0 and must be ignored.
     pub valid: bool,
     /// Distance along the corridor's path ([`PathMsg`]; straight: vehicle-frame z), m.
+    ///
+    /// [`PathMsg`]: super::PathMsg
     pub distance: f64,
     /// Offset from that path (straight: vehicle-frame x), m, positive to the right.
     pub lateral: f64,

@@ -1,7 +1,13 @@
 //! `FLYD_Status`: flyd's health (state, faults, sensor faults, the motion's, perception's age,
 //! generation and frame rates).
 
-use super::*;
+use std::time::Duration;
+
+use super::{
+    AliveCounter, CanMessage, DecodeError, FRAME_LEN, decode_enum, seal, to_raw_unsigned, unseal,
+};
+use crate::sensor::SensorFaults;
+use crate::status::{FaultBits, State};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
 mod layout {

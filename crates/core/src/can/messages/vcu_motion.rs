@@ -1,7 +1,9 @@
 //! `VCU_Motion`: the vehicle's own motion, received (flyd encodes it too, as the mock vehicle
 //! and the tests send it).
 
-use super::*;
+use std::time::Duration;
+
+use super::{AliveCounter, CanMessage, DecodeError, FRAME_LEN, seal, to_raw_signed, unseal};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
 mod layout {
