@@ -1,6 +1,6 @@
 //! The raw V4L2 ioctls flyd issues besides the `v4l` crate's streaming: capabilities, format
-//! and frame rate. Nothing here is reachable without a V4L2 node (the VM suite's vivid and
-//! v4l2loopback devices exercise it).
+//! and frame rate. Nothing here is reachable without a V4L2 node (the VM suite's v4l2loopback
+//! cameras exercise it).
 
 use super::{CAP_TIMEPERFRAME, FIELD_NONE, Negotiated, V4l2Config};
 use std::io;

@@ -849,7 +849,7 @@ mod tests {
         let _ = writeln!(io::stderr(), "SKIP: {reason}");
     }
 
-    /// Streams from a real camera when there is one (the VM with `vivid`, or a rig).
+    /// Streams from a real camera when there is one (a rig, or a machine with `vivid` loaded).
     /// `FLYD_TEST_VIDEO` picks the node (default /dev/video0).
     #[test]
     fn real_device_streams_monotonic_frames() {
@@ -857,8 +857,8 @@ mod tests {
         if !Path::new(&path).exists() {
             skip(&format!(
                 "real_device_streams_monotonic_frames: no {path} on this machine (no V4L2 \
-                 here); the open/convert paths are covered by the other tests, run this one \
-                 in the VM with vivid loaded"
+                 here); the open/convert paths are covered by the other tests and the VM \
+                 suite's v4l2loopback cameras; run this one where vivid is loaded"
             ));
             return;
         }
