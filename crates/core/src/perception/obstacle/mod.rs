@@ -59,8 +59,11 @@
 //!    whole epipolar line ([`Engine::line_ambiguity`], every `line_step_px`): a repeated
 //!    structure matches a period away (on hw-mock's empty road, 30 flies on one pole matched
 //!    with the next pole 102 px of disparity off made a 1.5 m "obstacle" unique within 4 px).
-//!    Unless half of them are unique there too (ambiguity at most `max_line_ambiguity`), the
-//!    cluster is dropped and the next one looked at (at most `MAX_VERIFIED` an estimate).
+//!    Each of them holds when it is unique there too (ambiguity at most `max_line_ambiguity`)
+//!    and, where the line offers it a rival, a larger window does not prefer another disparity
+//!    ([`super::dense`]). Unless half of them hold, the cluster is dropped and the next one
+//!    looked at (at most `MAX_VERIFIED` an estimate). A vote per fly: one fly at a silhouette,
+//!    whose larger window sees the background, does not drop a cluster.
 //!    Verdicts are kept for the frame: a cluster at the same depth on the same frame is not
 //!    verified again. (The fittest flies of hw-mock's pedestrian measure 0.002-0.1 along the
 //!    line, those of its car 0.25-0.95: the car's texture is mostly horizontal lines.)
@@ -521,12 +524,7 @@ impl ObstacleFinder {
         }
         let out = &mut self.verify_out[..k];
         engine.line_ambiguity(frame, &self.verify, c.line_step_px as f32, out)?;
-        let unique = out
-            .iter()
-            .filter(|&&a| f64::from(a) <= c.max_line_ambiguity)
-            .count();
-        // The same flies by a dense local matcher over the whole range (see [`super::dense`]):
-        // at least half of those it can judge agree (none judged: the line's verdict stands).
+        // Each verified fly votes (`holds`); the cluster is genuine when half of them hold.
         let pop = engine.population();
         let params = engine.params();
         let f_b = self.pixels_per_inverse_depth;
@@ -534,34 +532,36 @@ impl ObstacleFinder {
             (f_b / params.max_depth).floor().max(0.0) as u32,
             (f_b / params.min_depth).ceil().max(0.0) as u32,
         );
-        let (mut judged, mut agree) = (0usize, 0usize);
-        if c.dense_check {
-            // Only where the line offers a rival match: a fly unique along the whole line
-            // (ambiguity at most DENSE_RIVAL) has nothing for a larger window to arbitrate,
-            // and at an object's silhouette that window sees mostly what is behind it.
-            for (&i, _) in self
-                .verify
-                .iter()
-                .zip(out.iter())
-                .filter(|&(_, &a)| f64::from(a) > DENSE_RIVAL)
-            {
-                let i = i as usize;
-                let verdict = super::dense::agrees(
+        let mut hold = 0usize;
+        for (&i, &a) in self.verify.iter().zip(out.iter()) {
+            let i = i as usize;
+            let dense = || {
+                super::dense::agrees(
                     &frame.left,
                     &frame.right,
                     (pop.u_left[i], pop.v_left[i]),
                     (pop.u_right[i], pop.v_right[i]),
                     range,
-                );
-                judged += usize::from(verdict.is_some());
-                agree += usize::from(verdict == Some(true));
-            }
+                )
+            };
+            hold += usize::from(holds(f64::from(a), &c, dense));
         }
-        let genuine = 2 * unique >= k && 2 * agree >= judged;
+        let genuine = 2 * hold >= k;
         self.verdicts[self.verdict_next] = (frame.id, near, far, genuine);
         self.verdict_next = (self.verdict_next + 1) % self.verdicts.len();
         Ok(genuine)
     }
+}
+
+/// One verified fly's vote (step 5): it holds when it is unique along the epipolar line
+/// (`line_ambiguity` at most `max_line_ambiguity`) and, where the line offers it a rival
+/// (above [`DENSE_RIVAL`]), the dense window does not prefer another disparity (`dense`,
+/// asked only then; `None`, a window it cannot judge, leaves the line's verdict). A fly
+/// unique along the whole line has nothing for a larger window to arbitrate, and at an
+/// object's silhouette that window sees mostly what is behind it.
+fn holds(line_ambiguity: f64, c: &ObstacleConfig, dense: impl FnOnce() -> Option<bool>) -> bool {
+    line_ambiguity <= c.max_line_ambiguity
+        && !(c.dense_check && line_ambiguity > DENSE_RIVAL && dense() == Some(false))
 }
 
 #[cfg(test)]
@@ -741,6 +741,51 @@ mod tests {
         };
         assert!(reaches_the_road(&flies(&[8.1; 12]), &high));
         assert!(!reaches_the_road(&[], &c), "no flies, no obstacle");
+    }
+
+    #[test]
+    fn a_verified_fly_holds_unless_the_line_or_the_dense_window_refutes_it() {
+        let c = ObstacleConfig::default();
+        let never = || -> Option<bool> { panic!("the dense window is asked only for a rival") };
+        // Unique along the line: holds, without asking the dense window.
+        assert!(holds(0.2, &c, never));
+        // A better match elsewhere on the line: refuted, whatever the window says.
+        assert!(!holds(c.max_line_ambiguity + 0.1, &c, || Some(true)));
+        // A rival on the line: the dense window arbitrates; no verdict leaves the line's.
+        assert!(holds(0.7, &c, || Some(true)));
+        assert!(!holds(0.7, &c, || Some(false)));
+        assert!(holds(0.7, &c, || None));
+        let off = ObstacleConfig {
+            dense_check: false,
+            ..c
+        };
+        assert!(holds(0.7, &off, never));
+        // A cluster: half of the verified flies must hold. Five of six on hw-mock's
+        // pedestrian (one at its silhouette, where the window sees the road behind) is an
+        // obstacle; a row of trunks matched a period away (every fly a rival the window
+        // refutes) is not.
+        let votes = |flies: &[(f64, Option<bool>)]| {
+            let hold = flies.iter().filter(|&&(a, d)| holds(a, &c, || d)).count();
+            2 * hold >= flies.len()
+        };
+        let pedestrian = [
+            (0.18, None),
+            (0.01, None),
+            (0.41, None),
+            (0.75, Some(false)),
+            (0.15, None),
+            (0.04, None),
+        ];
+        assert!(votes(&pedestrian));
+        assert!(!votes(&[(0.8, Some(false)); 6]));
+        assert!(!votes(
+            &[
+                (0.3, None),
+                (0.9, None),
+                (0.6, Some(false)),
+                (0.7, Some(false))
+            ][..3]
+        ));
     }
 
     #[test]
