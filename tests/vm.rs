@@ -1466,7 +1466,18 @@ fn flyd_records_through_v4l2_and_the_recording_replays_to_the_commands_seen_on_v
         on_bus.len(),
         "frames recorded as sent vs seen on vcan0"
     );
-    assert!(sent == on_bus, "the recorded frames differ from vcan0's");
+    // The first difference and what surrounds it: a run once differed here (2026-12-06, in
+    // a clean-clone CI; 4 reruns passed), and the assertion said no more than that.
+    if let Some(k) = sent.iter().zip(&on_bus).position(|(a, b)| a != b) {
+        let around = k.saturating_sub(3)..(k + 4).min(sent.len());
+        panic!(
+            "the recorded frames differ from vcan0's from frame {k} of {}: recorded {:X?}, \
+             on vcan0 {:X?}",
+            sent.len(),
+            &sent[around.clone()],
+            &on_bus[around]
+        );
+    }
 
     // The replay on the host.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_flyd"))
