@@ -541,7 +541,8 @@ fn cmd_check_config(file: &Path) -> anyhow::Result<()> {
     )?;
     let rig = config.load_calibration()?.rig;
     let mock = config.calibration == config::CalibrationSource::BuiltinMock;
-    if let Some(r) = config.resolution(&rig).filter(|r| !r.enough() && mock) {
+    let short = config.resolution(&rig).filter(|r| !r.enough());
+    if let Some(r) = short.filter(|_| mock) {
         // hw-mock's simulated pair is what it is: nothing to change in this file.
         say!(
             "{}: note: the built-in mock rig resolves {:.1} m within decision.margin_m = {}, \
@@ -553,7 +554,7 @@ fn cmd_check_config(file: &Path) -> anyhow::Result<()> {
             r.speed * 3.6,
             r.slow_distance,
         )?;
-    } else if let Some(r) = config.resolution(&rig).filter(|r| !r.enough()) {
+    } else if let Some(r) = short {
         eprintln!(
             "{}: warning: the rig cannot resolve the SLOW distance at vehicle.assumed_speed_kmh \
              = {:.0}: one pixel of disparity at {:.1} m is {:.1} m of depth (Z^2 / (f B)), more \
