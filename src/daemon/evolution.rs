@@ -251,16 +251,23 @@ impl EvolutionThread {
     /// measurement) and, at debug level, on every new pair.
     fn log_road(&mut self, road: &RoadEstimate) {
         let p = road.plane;
-        if self.road_source != Some(road.source) {
-            if road.measured() {
-                tracing::info!(
+        // One event, its level and message by case (tracing's levels are constants).
+        macro_rules! road {
+            ($level:ident, $message:expr) => {
+                tracing::$level!(
                     source = %road.source,
                     height_m = p.height,
                     pitch_deg = p.pitch_deg(),
                     roll_deg = p.roll_deg(),
                     inliers = road.inliers,
-                    "road measured"
-                );
+                    rms_m = road.rms,
+                    $message
+                )
+            };
+        }
+        if self.road_source != Some(road.source) {
+            if road.measured() {
+                road!(info, "road measured");
             } else {
                 tracing::warn!(
                     source = %road.source,
@@ -270,15 +277,7 @@ impl EvolutionThread {
             }
             self.road_source = Some(road.source);
         }
-        tracing::debug!(
-            source = %road.source,
-            height_m = p.height,
-            pitch_deg = p.pitch_deg(),
-            roll_deg = p.roll_deg(),
-            inliers = road.inliers,
-            rms_m = road.rms,
-            "road"
-        );
+        road!(debug, "road");
     }
 
     /// Sleeps up to `wait`, in slices of at most [`FRAME_POLL`], until either camera publishes

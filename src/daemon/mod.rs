@@ -486,34 +486,36 @@ fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
     let Some(r) = config.resolution(rig) else {
         return;
     };
+    // One event, its level and message by case (tracing's levels are constants).
+    macro_rules! resolution {
+        ($level:ident, $message:expr) => {
+            tracing::$level!(
+                speed_kmh = r.speed * 3.6,
+                slow_distance_m = r.slow_distance,
+                depth_error_per_px_m = r.error_per_pixel,
+                margin_m = r.margin,
+                resolved_m = r.resolved,
+                $message
+            )
+        };
+    }
     let mock = config.calibration == crate::config::CalibrationSource::BuiltinMock;
-    if !r.enough() && mock {
+    if r.enough() {
+        resolution!(
+            info,
+            "the rig resolves the SLOW distance at the assumed speed within the margin"
+        );
+    } else if mock {
         // hw-mock's simulated pair: what it resolves is a fact of the demo, not a fault of
         // the configuration.
-        tracing::info!(
-            speed_kmh = r.speed * 3.6,
-            slow_distance_m = r.slow_distance,
-            depth_error_per_px_m = r.error_per_pixel,
-            margin_m = r.margin,
-            resolved_m = r.resolved,
+        resolution!(
+            info,
             "the built-in mock rig resolves less than the SLOW distance at the assumed speed \
              within the margin (a real rig is warned about)"
         );
-    } else if r.enough() {
-        tracing::info!(
-            speed_kmh = r.speed * 3.6,
-            slow_distance_m = r.slow_distance,
-            depth_error_per_px_m = r.error_per_pixel,
-            resolved_m = r.resolved,
-            "the rig resolves the SLOW distance at the assumed speed within the margin"
-        );
     } else {
-        tracing::warn!(
-            speed_kmh = r.speed * 3.6,
-            slow_distance_m = r.slow_distance,
-            depth_error_per_px_m = r.error_per_pixel,
-            margin_m = r.margin,
-            resolved_m = r.resolved,
+        resolution!(
+            warn,
             "the rig cannot resolve the SLOW distance at the assumed speed: one pixel of \
              disparity there (Z^2 / (f B)) is more depth than the decision's margin"
         );

@@ -712,22 +712,27 @@ mod tests {
         assert!(!PredictedPath::arc(0.0).rate.is_nan() && PredictedPath::arc(0.0).is_straight());
     }
 
+    /// Into a bend at 10 m/s, 100 Hz, for `steps` updates: the yaw rate grows by 0.05 rad/s
+    /// each second. The last estimate.
+    fn into_a_bend(e: &mut PathEstimator, steps: u32) -> PathEstimate {
+        let mut last = PathEstimate::STRAIGHT;
+        for i in 0..steps {
+            let t = f64::from(i) * 0.01;
+            let motion = VehicleMotion {
+                speed: 10.0,
+                yaw_rate: 0.05 * t,
+            };
+            last = e.update(motion, 0.01);
+        }
+        last
+    }
+
     #[test]
     fn the_clothoid_estimator_measures_how_the_curvature_changes() {
         // Into a bend at 10 m/s, 100 Hz: the yaw rate grows by 0.05 rad/s each second, the
         // curvature by 0.005 1/m per 10 m: 0.0005 1/m^2.
         let mut e = PathEstimator::with_model(PathModel::Clothoid { window: 0.3 });
-        let mut last = PathEstimate::STRAIGHT;
-        for i in 0..200 {
-            let t = f64::from(i) * 0.01;
-            last = e.update(
-                VehicleMotion {
-                    speed: 10.0,
-                    yaw_rate: 0.05 * t,
-                },
-                0.01,
-            );
-        }
+        let mut last = into_a_bend(&mut e, 200);
         assert!((last.held.rate - 0.0005).abs() < 1e-6, "{last:?}");
         assert_eq!(last.held, last.now);
         assert!((last.held.curvature - 0.00995).abs() < 1e-4, "{last:?}");
@@ -763,17 +768,7 @@ mod tests {
     #[test]
     fn the_gated_clothoid_holds_both_plausible_paths_and_says_how_far_apart_they_are() {
         let mut e = PathEstimator::with_model(PathModel::ClothoidGated { window: 0.3 });
-        let mut last = PathEstimate::STRAIGHT;
-        for i in 0..100 {
-            let t = f64::from(i) * 0.01;
-            last = e.update(
-                VehicleMotion {
-                    speed: 10.0,
-                    yaw_rate: 0.05 * t,
-                },
-                0.01,
-            );
-        }
+        let mut last = into_a_bend(&mut e, 100);
         // The centre line keeps steering in; the gate is where the vehicle goes if it stops.
         assert!(last.held.rate > 0.0 && last.now.rate == 0.0, "{last:?}");
         assert_eq!(last.held.curvature, last.now.curvature);

@@ -246,14 +246,6 @@ pub fn bent(k: f64, props: &[Obstacle]) -> Vec<Obstacle> {
 mod tests {
     use super::*;
 
-    fn ray(o: [f64; 3], d: [f64; 3]) -> Ray {
-        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        Ray {
-            origin: o,
-            dir: [d[0] / n, d[1] / n, d[2] / n],
-        }
-    }
-
     #[test]
     fn road_coordinates_round_trip_either_way() {
         for k in [0.0, 1.0 / 60.0, -1.0 / 120.0] {
@@ -288,7 +280,7 @@ mod tests {
             ([-3.0, 1.3, 12.0], [1.0, 0.0, 0.1]),
             ([0.0, 3.0, 12.0], [0.0, -1.0, 0.05]),
         ] {
-            let r = ray(o, d);
+            let r = Ray::towards(o, d);
             let (a, b) = (boxed.intersect(&r), bent.intersect(&r));
             let (a, b) = (a.expect("hits the box"), b.expect("hits the bent box"));
             assert!((a.t - b.t).abs() < 1e-9, "{a:?} vs {b:?}");
@@ -309,7 +301,7 @@ mod tests {
         let props = bent(k, &[]);
         let rail = props[0];
         let hit = rail
-            .intersect(&ray([0.0, 0.4, 0.0], [0.0, 0.0, 1.0]))
+            .intersect(&Ray::towards([0.0, 0.4, 0.0], [0.0, 0.0, 1.0]))
             .expect("the guard rail is straight ahead");
         let (along, offset) = locate(k, hit.point[0], hit.point[2]);
         assert!((offset - 5.45).abs() < 1e-6, "{offset}");
@@ -319,10 +311,10 @@ mod tests {
         // Looking along the bend's chord 20 m on, the road is clear up to there; a ray above
         // the rail misses it.
         let (x, z) = point(k, 20.0, 0.0);
-        let on = rail.intersect(&ray([0.0, 0.4, 0.0], [x, 0.0, z]));
+        let on = rail.intersect(&Ray::towards([0.0, 0.4, 0.0], [x, 0.0, z]));
         assert!(on.is_none_or(|h| h.t > 21.0), "{on:?}");
         assert!(
-            rail.intersect(&ray([0.0, 1.3, 0.0], [0.0, 0.0, 1.0]))
+            rail.intersect(&Ray::towards([0.0, 1.3, 0.0], [0.0, 0.0, 1.0]))
                 .is_none()
         );
     }

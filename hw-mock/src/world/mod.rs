@@ -77,6 +77,17 @@ pub struct Ray {
 }
 
 impl Ray {
+    /// A ray from `origin` along `direction` (of any length).
+    #[cfg(test)]
+    pub(crate) fn towards(origin: [f64; 3], direction: [f64; 3]) -> Ray {
+        let n = norm(direction);
+        let d = direction;
+        Ray {
+            origin,
+            dir: [d[0] / n, d[1] / n, d[2] / n],
+        }
+    }
+
     #[inline]
     pub fn at(&self, t: f64) -> [f64; 3] {
         [
@@ -587,19 +598,11 @@ impl Scene {
 mod tests {
     use super::*;
 
-    fn ray(o: [f64; 3], d: [f64; 3]) -> Ray {
-        let n = norm(d);
-        Ray {
-            origin: o,
-            dir: [d[0] / n, d[1] / n, d[2] / n],
-        }
-    }
-
     #[test]
     fn box_hit_faces_and_coordinates() {
         let car = Obstacle::car(0.0, 10.0);
         let hit = car
-            .intersect(&ray([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+            .intersect(&Ray::towards([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
             .expect("hits the rear");
         assert!((hit.t - 10.0).abs() < 1e-12);
         assert_eq!(hit.face, Face::NegZ);
@@ -607,11 +610,11 @@ mod tests {
         assert!(hit.s.abs() < 1e-12 && (hit.h - 1.0).abs() < 1e-12);
         // Missing to the side, and starting inside, see nothing.
         assert!(
-            car.intersect(&ray([3.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+            car.intersect(&Ray::towards([3.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
                 .is_none()
         );
         assert!(
-            car.intersect(&ray([0.0, 1.0, 12.0], [0.0, 0.0, 1.0]))
+            car.intersect(&Ray::towards([0.0, 1.0, 12.0], [0.0, 0.0, 1.0]))
                 .is_none()
         );
     }
@@ -620,13 +623,13 @@ mod tests {
     fn cylinder_hit_front_and_cap() {
         let p = Obstacle::pedestrian(0.0, 4.0);
         let hit = p
-            .intersect(&ray([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
+            .intersect(&Ray::towards([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]))
             .expect("hits");
         assert!((hit.t - 3.75).abs() < 1e-12);
         assert_eq!(hit.face, Face::Round);
         assert!(hit.s.abs() < 1e-12);
         let top = p
-            .intersect(&ray([0.0, 3.0, 0.0], [0.0, -1.25, 4.0]))
+            .intersect(&Ray::towards([0.0, 3.0, 0.0], [0.0, -1.25, 4.0]))
             .expect("hits the top");
         assert_eq!(top.face, Face::Cap);
         assert!((top.point[1] - 1.75).abs() < 1e-12);
@@ -651,7 +654,7 @@ mod tests {
         for o in bad {
             assert!(!o.is_valid());
             assert!(
-                o.intersect(&ray([0.0, 0.5, 0.0], [0.0, 0.0, 1.0]))
+                o.intersect(&Ray::towards([0.0, 0.5, 0.0], [0.0, 0.0, 1.0]))
                     .is_none()
             );
             assert!(o.bounding_sphere().is_none());

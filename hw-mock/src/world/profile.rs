@@ -657,14 +657,6 @@ mod tests {
     use super::*;
     use crate::world::Face;
 
-    fn ray(o: [f64; 3], d: [f64; 3]) -> Ray {
-        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        Ray {
-            origin: o,
-            dir: [d[0] / n, d[1] / n, d[2] / n],
-        }
-    }
-
     static ARC: [Segment; 3] = [
         Segment::straight(20.0),
         Segment::arc(60.0, 1.0 / 40.0),
@@ -802,7 +794,7 @@ mod tests {
             let (x, z) = road.point(along, offset);
             let top = props
                 .iter()
-                .filter_map(|o| o.intersect(&ray([x, 3.0, z], [0.0, -1.0, 0.0])))
+                .filter_map(|o| o.intersect(&Ray::towards([x, 3.0, z], [0.0, -1.0, 0.0])))
                 .min_by(|a, b| a.t.total_cmp(&b.t))
                 .expect("the post is there");
             assert!((top.point[1] - 1.0).abs() < 1e-9, "{top:?}");
@@ -811,7 +803,7 @@ mod tests {
             let (tx, tz) = road.point(along, offset.signum() * 3.0);
             let side = props
                 .iter()
-                .filter_map(|o| o.intersect(&ray([cx, 0.5, cz], [tx - cx, 0.0, tz - cz])))
+                .filter_map(|o| o.intersect(&Ray::towards([cx, 0.5, cz], [tx - cx, 0.0, tz - cz])))
                 .min_by(|a, b| a.t.total_cmp(&b.t))
                 .expect("the post's side");
             assert!((side.t - 2.35).abs() < 1e-6, "{side:?}");
@@ -823,7 +815,7 @@ mod tests {
         let (tx, tz) = road.point(30.0, 4.0);
         let rail = props
             .iter()
-            .filter_map(|o| o.intersect(&ray([cx, 0.5, cz], [tx - cx, 0.0, tz - cz])))
+            .filter_map(|o| o.intersect(&Ray::towards([cx, 0.5, cz], [tx - cx, 0.0, tz - cz])))
             .min_by(|a, b| a.t.total_cmp(&b.t))
             .expect("the guard rail");
         assert!((rail.t - RAIL[0]).abs() < 1e-6, "{rail:?}");
@@ -854,7 +846,7 @@ mod tests {
             let (tx, tz) = road.point(along, 4.1);
             let hit = wall
                 .iter()
-                .filter_map(|o| o.intersect(&ray([cx, 1.0, cz], [tx - cx, 0.0, tz - cz])))
+                .filter_map(|o| o.intersect(&Ray::towards([cx, 1.0, cz], [tx - cx, 0.0, tz - cz])))
                 .min_by(|a, b| a.t.total_cmp(&b.t))
                 .expect("the wall");
             assert_eq!(hit.face, Face::NegX, "{along}");
@@ -866,7 +858,7 @@ mod tests {
         let (tx, tz) = road.point(6.0, 4.1);
         let end = wall
             .iter()
-            .filter_map(|o| o.intersect(&ray([cx, 1.0, cz], [tx - cx, 0.0, tz - cz])))
+            .filter_map(|o| o.intersect(&Ray::towards([cx, 1.0, cz], [tx - cx, 0.0, tz - cz])))
             .min_by(|a, b| a.t.total_cmp(&b.t))
             .expect("the wall's end");
         assert_eq!(end.face, Face::NegZ);

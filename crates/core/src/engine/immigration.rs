@@ -259,15 +259,7 @@ impl Immigration {
         }
         if probing > 0 {
             self.probed = first;
-            ctx.kernel.evaluate(
-                ctx.isa,
-                ctx.left,
-                ctx.right,
-                &mut self.probe,
-                0..first,
-                ctx.sharing,
-                scratch,
-            );
+            ctx.evaluate(&mut self.probe, 0..first, scratch);
             // Best probe of each immigrant so far: (t, fitness, probe index).
             for j in 0..probing {
                 let (start, n) = self.probe_span[j];
@@ -301,13 +293,9 @@ impl Immigration {
                     }
                 }
                 self.probed += probing * REFINE_PROBES;
-                ctx.kernel.evaluate(
-                    ctx.isa,
-                    ctx.left,
-                    ctx.right,
+                ctx.evaluate(
                     &mut self.probe,
                     fine..fine + probing * REFINE_PROBES,
-                    ctx.sharing,
                     scratch,
                 );
                 for j in 0..probing {

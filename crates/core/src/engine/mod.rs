@@ -86,7 +86,7 @@ use crate::kinematics::{EgoTransform, VehicleMotion};
 use crate::road_plane::RoadPlane;
 use breeding::Breeder;
 use change::{ChangeMap, EgoFlow};
-use fitness::{Kernel, Scratch};
+use fitness::{Kernel, Matches, Scratch};
 pub use immigration::MAX_FOCUS;
 use immigration::{Context, Immigration};
 use mutation::Mutation;
@@ -98,6 +98,7 @@ use refresh::Refresh;
 use sampler::Sampler;
 use select::Survival;
 use sharing::{Grid, Mates};
+use std::ops::Range;
 use sweep::Sweeps;
 use uniqueness::Uniqueness;
 
@@ -235,6 +236,26 @@ impl Context<'_> {
             kernel,
             isa,
         }
+    }
+
+    /// Evaluates flies `range` of `pop` on the kernel's frame (projections, sharing cells,
+    /// raw fitness; [`Kernel::evaluate`]).
+    #[inline(always)]
+    fn evaluate(
+        &self,
+        pop: &mut Population,
+        range: Range<usize>,
+        scratch: &mut Scratch,
+    ) -> Matches {
+        self.kernel.evaluate(
+            self.isa,
+            self.left,
+            self.right,
+            pop,
+            range,
+            self.sharing,
+            scratch,
+        )
     }
 }
 
@@ -453,15 +474,8 @@ impl Engine {
         let from = self.unevaluated_from;
         let n = self.pop.len();
         let t = phase::start(Phase::Evaluate);
-        let matches = kernel.evaluate(
-            self.isa,
-            &self.setup.left,
-            &self.setup.right,
-            &mut self.pop,
-            from..n,
-            &self.sharing,
-            &mut self.scratch,
-        );
+        let at = Context::of(&self.setup, &self.change, &self.sharing, &kernel, self.isa);
+        let matches = at.evaluate(&mut self.pop, from..n, &mut self.scratch);
         self.unevaluated_from = n;
         t.stop();
         let t = phase::start(Phase::Share);

@@ -49,15 +49,7 @@ impl Refresh {
             self.batch.y[k] = pop.y[i];
             self.batch.z[k] = pop.z[i];
         }
-        ctx.kernel.evaluate(
-            ctx.isa,
-            ctx.left,
-            ctx.right,
-            &mut self.batch,
-            0..m,
-            ctx.sharing,
-            scratch,
-        );
+        ctx.evaluate(&mut self.batch, 0..m, scratch);
         for (k, &i) in self.changed[..m].iter().enumerate() {
             pop.raw_fitness[i as usize] = self.batch.raw_fitness[k];
         }

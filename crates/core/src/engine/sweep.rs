@@ -13,6 +13,7 @@
 //! over its own. This room owns the batch of probes.
 
 use super::fitness::Kernel;
+use super::immigration::Context;
 use super::sampler::lerp;
 use super::{Engine, EngineError, Population};
 use crate::frame::StereoFrame;
@@ -160,16 +161,8 @@ impl Engine {
                 (s.batch.x[at], s.batch.y[at], s.batch.z[at]) = (p[0], p[1], p[2]);
             }
         }
-        let (left, right, grid) = (&self.setup.left, &self.setup.right, &self.sharing);
-        kernel.evaluate(
-            self.isa,
-            left,
-            right,
-            &mut s.batch,
-            0..rays * steps,
-            grid,
-            &mut self.scratch,
-        );
+        let at = Context::of(&self.setup, &self.change, &self.sharing, &kernel, self.isa);
+        at.evaluate(&mut s.batch, 0..rays * steps, &mut self.scratch);
         // Per ray: the fittest step, its ambiguity against the steps more than 2 px away.
         for (j, &[_, _, i0, i1]) in s.rays.iter().enumerate() {
             let fit = &s.batch.raw_fitness[j * steps..(j + 1) * steps];
@@ -210,15 +203,7 @@ impl Engine {
                 (s.batch.x[at], s.batch.y[at], s.batch.z[at]) = (p[0], p[1], p[2]);
             }
         }
-        kernel.evaluate(
-            self.isa,
-            left,
-            right,
-            &mut s.batch,
-            0..rays * REFINE,
-            grid,
-            &mut self.scratch,
-        );
+        at.evaluate(&mut s.batch, 0..rays * REFINE, &mut self.scratch);
         for (j, o) in out.iter_mut().enumerate() {
             let fit = &s.batch.raw_fitness[j * REFINE..(j + 1) * REFINE];
             let (best, f) = fit
@@ -253,16 +238,8 @@ impl Engine {
             (s.batch.x[k], s.batch.y[k], s.batch.z[k]) = (p[0], p[1], p[2]);
         }
         let kernel = Kernel::new(frame, &self.setup.params, &RoadPlane::FLAT).without_roi();
-        let (left, right, grid) = (&self.setup.left, &self.setup.right, &self.sharing);
-        kernel.evaluate(
-            self.isa,
-            left,
-            right,
-            &mut s.batch,
-            0..n,
-            grid,
-            &mut self.scratch,
-        );
+        let at = Context::of(&self.setup, &self.change, &self.sharing, &kernel, self.isa);
+        at.evaluate(&mut s.batch, 0..n, &mut self.scratch);
         out[..n].copy_from_slice(&s.batch.raw_fitness[..n]);
         Ok(n)
     }
