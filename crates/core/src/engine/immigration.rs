@@ -11,7 +11,7 @@
 use super::Population;
 use super::breeding::unit_threshold;
 use super::change::ChangeMap;
-use super::fitness::{Kernel, Scratch};
+use super::fitness::{Kernel, Matches, Scratch};
 use super::lists::gather;
 use super::params::EngineParams;
 use super::projector::Projector;
@@ -20,6 +20,7 @@ use super::sharing::Grid;
 use crate::isa::Isa;
 use rand::Rng;
 use rand::rngs::Xoshiro256PlusPlus;
+use std::ops::Range;
 
 /// What the phases of a generation read from the engine (the frame's kernel included).
 pub(super) struct Context<'a> {
@@ -31,6 +32,47 @@ pub(super) struct Context<'a> {
     pub(super) sharing: &'a Grid,
     pub(super) kernel: &'a Kernel<'a>,
     pub(super) isa: Isa,
+}
+
+impl Context<'_> {
+    pub(super) fn of<'a>(
+        setup: &'a super::Setup,
+        change: &'a ChangeMap,
+        sharing: &'a Grid,
+        kernel: &'a Kernel<'a>,
+        isa: Isa,
+    ) -> Context<'a> {
+        Context {
+            params: &setup.params,
+            sampler: &setup.sampler,
+            left: &setup.left,
+            right: &setup.right,
+            change,
+            sharing,
+            kernel,
+            isa,
+        }
+    }
+
+    /// Evaluates flies `range` of `pop` on the kernel's frame (projections, sharing cells,
+    /// raw fitness; [`Kernel::evaluate`]).
+    #[inline(always)]
+    pub(super) fn evaluate(
+        &self,
+        pop: &mut Population,
+        range: Range<usize>,
+        scratch: &mut Scratch,
+    ) -> Matches {
+        self.kernel.evaluate(
+            self.isa,
+            self.left,
+            self.right,
+            pop,
+            range,
+            self.sharing,
+            scratch,
+        )
+    }
 }
 
 /// Second-stage depth probes of a guided immigrant, around its best first-stage probe.

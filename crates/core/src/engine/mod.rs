@@ -86,7 +86,7 @@ use crate::kinematics::{EgoTransform, VehicleMotion};
 use crate::road_plane::RoadPlane;
 use breeding::Breeder;
 use change::{ChangeMap, EgoFlow};
-use fitness::{Kernel, Matches, Scratch};
+use fitness::{Kernel, Scratch};
 pub use immigration::MAX_FOCUS;
 use immigration::{Context, Immigration};
 use mutation::Mutation;
@@ -98,7 +98,6 @@ use refresh::Refresh;
 use sampler::Sampler;
 use select::Survival;
 use sharing::{Grid, Mates};
-use std::ops::Range;
 use sweep::Sweeps;
 use uniqueness::Uniqueness;
 
@@ -216,47 +215,6 @@ pub struct Engine {
     /// Flies from this index on have not been evaluated since they were created.
     unevaluated_from: usize,
     stats: GenerationStats,
-}
-
-impl Context<'_> {
-    fn of<'a>(
-        setup: &'a Setup,
-        change: &'a ChangeMap,
-        sharing: &'a Grid,
-        kernel: &'a Kernel<'a>,
-        isa: Isa,
-    ) -> Context<'a> {
-        Context {
-            params: &setup.params,
-            sampler: &setup.sampler,
-            left: &setup.left,
-            right: &setup.right,
-            change,
-            sharing,
-            kernel,
-            isa,
-        }
-    }
-
-    /// Evaluates flies `range` of `pop` on the kernel's frame (projections, sharing cells,
-    /// raw fitness; [`Kernel::evaluate`]).
-    #[inline(always)]
-    fn evaluate(
-        &self,
-        pop: &mut Population,
-        range: Range<usize>,
-        scratch: &mut Scratch,
-    ) -> Matches {
-        self.kernel.evaluate(
-            self.isa,
-            self.left,
-            self.right,
-            pop,
-            range,
-            self.sharing,
-            scratch,
-        )
-    }
 }
 
 impl Engine {
