@@ -5,7 +5,6 @@
 #[path = "vm/can_log.rs"]
 #[allow(dead_code)] // the VM suite's decoder; this file uses a part of it
 mod can_log;
-#[path = "common/dbc_signals.rs"]
 mod dbc_signals;
 
 use std::path::{Path, PathBuf};

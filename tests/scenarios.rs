@@ -8,7 +8,7 @@
 //!
 //! The figures themselves (over many seeds) are in docs/perception.md; these are guards.
 
-mod util;
+mod flyd_cli;
 
 use std::path::Path;
 
@@ -27,7 +27,7 @@ fn replay(
     let (w, h) = (size.0.to_string(), size.1.to_string());
     let (seed, flies) = (seed.to_string(), flies.to_string());
     let out_dir = out.display().to_string();
-    let summary = util::flyd_json([
+    let summary = flyd_cli::flyd_json([
         "replay",
         "--scenario",
         scenario,
@@ -143,7 +143,7 @@ fn driving_towards_a_pedestrian_ends_in_a_stop() {
 fn approach(scenario: &str, from: f64, kmh: f64, stopping: f64, slow_ahead: f64) {
     let out = std::env::temp_dir().join(format!("flyd-{scenario}-{}", std::process::id()));
     let out_dir = out.display().to_string();
-    let summary = util::flyd_json([
+    let summary = flyd_cli::flyd_json([
         "replay",
         "--scenario",
         scenario,
