@@ -5,7 +5,6 @@
 #[path = "vm/can_log.rs"]
 #[allow(dead_code)] // the VM suite's decoder; this file uses a part of it
 mod can_log;
-#[path = "common/dbc_signals.rs"]
 mod dbc_signals;
 
 use std::path::{Path, PathBuf};
@@ -238,6 +237,22 @@ fn motion_of_poses(text: &str, fps: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// `flyd replay` of the drive's images in `drive`, calibrated by `rig`, the vehicle's motion
+/// from the candump log `bus`, into `out`: its output, whether it succeeded or not.
+fn replay_drive(drive: &Path, rig: &Path, bus: &Path, out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .args(["replay", "--sequence"])
+        .arg(drive)
+        .arg("--calib")
+        .arg(rig)
+        .arg("--can-input")
+        .arg(bus)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("flyd replay")
+}
+
 #[test]
 fn a_real_drive_replayed_with_its_bus_is_decided_at_the_speed_vcu_motion_says() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -276,17 +291,7 @@ fn a_real_drive_replayed_with_its_bus_is_decided_at_the_speed_vcu_motion_says() 
         ),
     )
     .expect("rig");
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .args(["replay", "--sequence"])
-        .arg(&drive)
-        .arg("--calib")
-        .arg(&rig)
-        .arg("--can-input")
-        .arg(&log)
-        .arg("--out")
-        .arg(&out_dir)
-        .output()
-        .expect("flyd replay");
+    let out = replay_drive(&drive, &rig, &log, &out_dir);
     assert!(
         out.status.success(),
         "{}",
@@ -327,17 +332,7 @@ fn a_real_drive_replayed_with_its_bus_is_decided_at_the_speed_vcu_motion_says() 
     }
     // A log that is not candump is an error naming the file and line.
     std::fs::write(&log, "not a candump line\n").expect("log");
-    let out = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .args(["replay", "--sequence"])
-        .arg(&drive)
-        .arg("--calib")
-        .arg(&rig)
-        .arg("--can-input")
-        .arg(&log)
-        .arg("--out")
-        .arg(&out_dir)
-        .output()
-        .expect("flyd replay");
+    let out = replay_drive(&drive, &rig, &log, &out_dir);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && stderr.contains("bus.log:1: not a candump line"),

@@ -3,18 +3,18 @@
 //! Assertions are on frames, counters, states and orderings; waits have a generous deadlock
 //! guard only (the machine is shared: no timing is asserted).
 
-mod common;
+mod mock_daemon;
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use common::*;
 use flyd::daemon::EndReason;
 use flyd_core::can::bus::BusError;
 use flyd_core::can::messages::PathMsg;
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::status::{FaultBits, State};
+use mock_daemon::*;
 
 #[test]
 fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {

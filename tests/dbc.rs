@@ -8,7 +8,6 @@
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-#[path = "common/dbc_signals.rs"]
 mod dbc_signals;
 
 use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};

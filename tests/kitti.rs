@@ -12,7 +12,7 @@
 //!
 //! The figures themselves are in docs/perception.md; these are guards at what was measured.
 
-mod util;
+mod flyd_cli;
 
 use flyd_core::dataset::read_pfm;
 use std::path::{Path, PathBuf};
@@ -59,7 +59,7 @@ fn replay_pair(pair: &str, seed: u64) -> (serde_json::Value, tempfile::TempDir) 
     ] {
         args.extend([flag.into(), path.into()]);
     }
-    (util::flyd_json(args), out)
+    (flyd_cli::flyd_json(args), out)
 }
 
 #[test]
@@ -307,7 +307,7 @@ fn a_car_crossing_into_the_corridor_is_seen_at_its_distance() {
         ] {
             args.extend([flag.into(), path.into()]);
         }
-        let s = util::flyd_json(args);
+        let s = flyd_cli::flyd_json(args);
         let frames = s["per_frame"].as_array().expect("per_frame");
         assert_eq!(frames.len(), 12);
         // A real sequence: no frame uniform, frozen or mismatched.
@@ -384,7 +384,7 @@ fn replay_still(left: &Path, right: &Path, calib: &Path) -> serde_json::Value {
     ] {
         args.extend([flag.into(), path.into()]);
     }
-    util::flyd_json(args)
+    flyd_cli::flyd_json(args)
 }
 
 /// What a user runs first on a pair of their own: the defaults must end on the decision the

@@ -9,7 +9,10 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc::RecvTimeoutError;
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 fn repo(path: &str) -> PathBuf {
@@ -23,6 +26,88 @@ fn node_ready() -> bool {
             .output()
             .is_ok_and(|o| o.status.success())
         && repo("target/py/bin/python3").exists()
+}
+
+/// `text` (a config/demo.toml) with the live view on port 0, written into `dir` as `name`: its
+/// path. Port 0: the kernel picks a free one; flyd logs the address it listens on.
+fn live_config(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let config = dir.join(name);
+    std::fs::write(
+        &config,
+        format!("{text}\n[live]\nlisten = \"127.0.0.1:0\"\n"),
+    )
+    .expect("write config");
+    config
+}
+
+/// A running `flyd run` with its live view listening; a thread reads its stdout (so that it
+/// never fills) and keeps every log line with the time it arrived.
+struct Live {
+    flyd: Child,
+    /// Where the live view listens, as flyd logged it (`127.0.0.1:PORT`).
+    listen: String,
+    lines: Arc<Mutex<Vec<(Instant, String)>>>,
+    reader: JoinHandle<()>,
+}
+
+impl Live {
+    /// Starts `flyd run --config CONFIG --can-log CAN_LOG ARGS` and waits (30 s at most) for
+    /// the line that says where its live view listens.
+    fn start(config: &Path, can_log: &Path, args: &[&str]) -> Live {
+        let mut flyd = Command::new(env!("CARGO_BIN_EXE_flyd"))
+            .arg("run")
+            .arg("--config")
+            .arg(config)
+            .arg("--can-log")
+            .arg(can_log)
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("flyd starts");
+        let stdout = flyd.stdout.take().expect("stdout");
+        let lines: Arc<Mutex<Vec<(Instant, String)>>> = Arc::default();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let reader = {
+            let lines = lines.clone();
+            std::thread::Builder::new()
+                .name("flyd-stdout".into())
+                .spawn(move || {
+                    for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                        if let Ok(v) = serde_json::from_str::<serde_json::Value>(&line)
+                            && let Some(listen) = v["listen"].as_str()
+                        {
+                            let _ = tx.send(listen.to_string());
+                        }
+                        if let Ok(mut l) = lines.lock() {
+                            l.push((Instant::now(), line));
+                        }
+                    }
+                })
+                .expect("thread")
+        };
+        let listen = match rx.recv_timeout(Duration::from_secs(30)) {
+            Ok(listen) => listen,
+            Err(RecvTimeoutError::Disconnected) => {
+                panic!("flyd ended before its live view listened")
+            }
+            Err(RecvTimeoutError::Timeout) => panic!("no live view within 30 s"),
+        };
+        Live {
+            flyd,
+            listen,
+            lines,
+            reader,
+        }
+    }
+
+    /// Waits for flyd to end and for its last log line: its exit status and every log line.
+    fn wait(mut self) -> (ExitStatus, Vec<(Instant, String)>) {
+        let status = self.flyd.wait().expect("flyd ends");
+        let _ = self.reader.join();
+        let lines = self.lines.lock().map(|l| l.clone()).unwrap_or_default();
+        (status, lines)
+    }
 }
 
 #[test]
@@ -41,41 +126,9 @@ fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let text = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
-    let config = dir.path().join("live.toml");
-    // Port 0: the kernel picks a free one; flyd logs the address it listens on.
-    std::fs::write(
-        &config,
-        format!("{text}\n[live]\nlisten = \"127.0.0.1:0\"\n"),
-    )
-    .expect("write config");
-    let mut flyd = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("run")
-        .arg("--config")
-        .arg(&config)
-        .args(["--can-log", "/dev/null"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("flyd starts");
-    let stdout = flyd.stdout.take().expect("stdout");
-    let mut lines = BufReader::new(stdout).lines();
-    let started = Instant::now();
-    let url = loop {
-        let Some(Ok(line)) = lines.next() else {
-            panic!("flyd ended before its live view listened");
-        };
-        if let Ok(v) = serde_json::from_str::<serde_json::Value>(&line)
-            && let Some(listen) = v["listen"].as_str()
-        {
-            break format!("ws://{listen}");
-        }
-        assert!(started.elapsed() < Duration::from_secs(20), "no live view");
-    };
-    // Keep reading flyd's logs so that its stdout never fills.
-    let drain = std::thread::Builder::new()
-        .name("drain".into())
-        .spawn(move || lines.count())
-        .expect("thread");
+    let config = live_config(dir.path(), "live.toml", &text);
+    let live = Live::start(&config, Path::new("/dev/null"), &[]);
+    let url = format!("ws://{}", live.listen);
 
     let out = Command::new("node")
         .arg(repo("tests/live/client.js"))
@@ -121,9 +174,8 @@ fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon
     assert!(["CLEAR", "SLOW", "STOP"].contains(&command), "{v}");
     assert!(v["server"].as_str().is_some_and(|s| s.starts_with("flyd")));
 
-    let status = flyd.wait().expect("flyd ends");
+    let (status, _) = live.wait();
     assert!(status.success(), "flyd exit {status}");
-    let _ = drain.join();
 }
 
 /// A hostile neighbour on loopback: 10,000 connections to the live view within 10 s (junk
@@ -136,7 +188,6 @@ fn a_foxglove_client_receives_images_flies_and_decisions_from_the_running_daemon
 fn a_flood_of_hostile_live_view_clients_is_a_few_log_lines_and_no_missed_command() {
     use std::io::{Read, Write};
     use std::net::{SocketAddr, TcpStream};
-    use std::sync::{Arc, Mutex};
 
     const CONNECTIONS: usize = 10_000;
     const WINDOW: Duration = Duration::from_secs(9);
@@ -154,52 +205,11 @@ fn a_flood_of_hostile_live_view_clients_is_a_few_log_lines_and_no_missed_command
         text.contains("mock_loop = true"),
         "the demo's [cameras] changed"
     );
-    let config = dir.path().join("flood.toml");
-    std::fs::write(
-        &config,
-        format!("{text}\n[live]\nlisten = \"127.0.0.1:0\"\n"),
-    )
-    .expect("write config");
+    let config = live_config(dir.path(), "flood.toml", &text);
     let can_log = dir.path().join("can.log");
-    let mut flyd = Command::new(env!("CARGO_BIN_EXE_flyd"))
-        .arg("run")
-        .arg("--config")
-        .arg(&config)
-        .arg("--can-log")
-        .arg(&can_log)
-        .args(["--duration", "22"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("flyd starts");
-    let pid = flyd.id();
-    let stdout = flyd.stdout.take().expect("stdout");
-    // Every log line with the time it arrived.
-    let lines: Arc<Mutex<Vec<(Instant, String)>>> = Arc::default();
-    let (tx, rx) = std::sync::mpsc::channel();
-    let reader = {
-        let lines = lines.clone();
-        std::thread::Builder::new()
-            .name("flyd-stdout".into())
-            .spawn(move || {
-                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                    if let Ok(v) = serde_json::from_str::<serde_json::Value>(&line)
-                        && let Some(listen) = v["listen"].as_str()
-                    {
-                        let _ = tx.send(listen.to_string());
-                    }
-                    if let Ok(mut l) = lines.lock() {
-                        l.push((Instant::now(), line));
-                    }
-                }
-            })
-            .expect("thread")
-    };
-    let addr: SocketAddr = rx
-        .recv_timeout(Duration::from_secs(30))
-        .expect("flyd's live view listens")
-        .parse()
-        .expect("an address");
+    let live = Live::start(&config, &can_log, &["--duration", "22"]);
+    let pid = live.flyd.id();
+    let addr: SocketAddr = live.listen.parse().expect("an address");
     let rss_kib = || -> u64 {
         std::fs::read_to_string(format!("/proc/{pid}/status"))
             .ok()
@@ -287,8 +297,7 @@ fn a_flood_of_hostile_live_view_clients_is_a_few_log_lines_and_no_missed_command
     std::thread::sleep(Duration::from_secs(6));
     drop(held);
     let end = Instant::now();
-    let status = flyd.wait().expect("flyd ends");
-    let _ = reader.join();
+    let (status, lines) = live.wait();
     assert!(status.success(), "flyd exit {status}");
 
     let connected = connected.load(std::sync::atomic::Ordering::Relaxed);
@@ -297,7 +306,6 @@ fn a_flood_of_hostile_live_view_clients_is_a_few_log_lines_and_no_missed_command
         "only {connected} of {CONNECTIONS} connections made"
     );
     assert!(flood <= Duration::from_secs(12), "the flood took {flood:?}");
-    let lines = lines.lock().map(|l| l.clone()).unwrap_or_default();
     let during: Vec<&String> = lines
         .iter()
         .filter(|(t, _)| *t >= start && *t <= start + flood + Duration::from_secs(1))

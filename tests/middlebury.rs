@@ -5,7 +5,7 @@
 //! ground truth at their left pixel (pixels of unknown truth excluded), and those 250 flies
 //! occupy at least 50 distinct 16x16-pixel cells of the left image.
 
-mod util;
+mod flyd_cli;
 
 use flyd_core::dataset::read_pfm;
 use std::path::{Path, PathBuf};
@@ -39,7 +39,7 @@ fn replay(set: &str, calib: &str) -> Vec<Fly> {
     ] {
         args.extend([flag.into(), path.into()]);
     }
-    let summary = util::flyd_json(args);
+    let summary = flyd_cli::flyd_json(args);
     for file in ["flies.csv", "overlay.png", "warnings.png", "trace.csv"] {
         assert!(out.path().join(file).exists(), "{file} missing");
     }

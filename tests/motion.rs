@@ -2,22 +2,22 @@
 //! MotionFault bit and the assumed speed when the motion stops or cannot be trusted, bad
 //! frames counted and never trusted.
 //!
-//! The scene's obstacle stands 3 m ahead (tests/common). At a standstill the stopping distance
-//! is the 2 m margin: no reason to brake (CLEAR). At 30 km/h it is 14.9 m: STOP. The vehicle's
-//! frames are pushed by a thread every 20 ms, as a VCU sends them.
+//! The scene's obstacle stands 3 m ahead (tests/mock_daemon). At a standstill the stopping
+//! distance is the 2 m margin: no reason to brake (CLEAR). At 30 km/h it is 14.9 m: STOP. The
+//! vehicle's frames are pushed by a thread every 20 ms, as a VCU sends them.
 
-mod common;
+mod mock_daemon;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use common::*;
 use flyd::bus::MemoryRx;
 use flyd_core::can::crc::e2e_crc;
 use flyd_core::can::messages::{AliveCounter, CanMessage, MotionMsg};
 use flyd_core::decision::Command;
+use mock_daemon::*;
 
 /// What the mock VCU sends each period.
 const SEND_SPEED: u32 = 0;

@@ -2,15 +2,15 @@
 //! (the way systemd's NOTIFY_SOCKET works), which the test hands the daemon with a watchdog
 //! interval (what `flyd run` reads from NOTIFY_SOCKET and WATCHDOG_USEC).
 
-mod common;
+mod mock_daemon;
 
 use std::os::unix::net::UnixDatagram;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use common::*;
 use flyd_core::can::bus::BusError;
 use flyd_core::status::{FaultBits, State};
+use mock_daemon::*;
 
 /// The test's `control.can_silence`.
 const SILENCE: Duration = Duration::from_millis(200);

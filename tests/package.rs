@@ -9,13 +9,13 @@
 //! installs them. What installing, upgrading and removing it does under a real systemd is the
 //! VM suite's `systemd_*` test (tests/vm.rs).
 
-mod util;
+mod flyd_cli;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-use util::output_ok;
+use flyd_cli::output_ok;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 

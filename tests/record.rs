@@ -10,7 +10,7 @@
 //! Needs target/py (scripts/prereqs installs it); without it the reader check fails with
 //! a message, unless FLYD_ALLOW_NO_PY is set, in which case it prints SKIP.
 
-mod util;
+mod flyd_cli;
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
@@ -586,8 +586,8 @@ fn a_rig_with_a_row_correction_records_and_replays_bit_for_bit() {
     // the replay must correct the recorded pixels the same way, or the flies part.
     let rigs = tempfile::tempdir().expect("tempdir");
     let rig_file =
-        util::mock_rig_320x240(rigs.path(), "[rectification]\nright_row_offset_px = 0.3\n");
-    let r = record_with(|demo| util::demo_320x240_on(demo, &rig_file), None);
+        flyd_cli::mock_rig_320x240(rigs.path(), "[rectification]\nright_row_offset_px = 0.3\n");
+    let r = record_with(|demo| flyd_cli::demo_320x240_on(demo, &rig_file), None);
     let s = replay_ok(&r.mcap, &[]);
     assert_eq!(s["commands_identical"], s["commands_recorded"], "{s}");
     assert_eq!(s["commands_recorded"], r.stopped["commands"], "{s}");

@@ -3,7 +3,7 @@
 //! as a rig file), as calibrated and with a wrong correction of 0.5 px; the recording carries
 //! each pair's correction and `flyd replay --mcap` reproduces the run bit for bit.
 
-mod util;
+mod flyd_cli;
 
 use std::path::Path;
 use std::process::Command;
@@ -20,18 +20,18 @@ fn measured(
     rig_edit: impl Fn(String) -> String,
     rectification: &str,
 ) -> Vec<serde_json::Value> {
-    let rig_file = util::mock_rig_320x240(dir, rectification);
+    let rig_file = flyd_cli::mock_rig_320x240(dir, rectification);
     let text = std::fs::read_to_string(&rig_file).expect("rig");
     std::fs::write(&rig_file, rig_edit(text)).expect("rig");
     let demo = std::fs::read_to_string(repo("config/demo.toml")).expect("demo config");
-    let config = util::demo_320x240_on(&demo, &rig_file).replace(
+    let config = flyd_cli::demo_320x240_on(&demo, &rig_file).replace(
         "mock = \"pedestrian-steps-in\"",
         // Looped: pairs keep coming however late a loaded machine lets the measure run.
         "mock = \"pedestrian-4m\"\nmock_loop = true",
     );
     let config_file = dir.join("flyd.toml");
     std::fs::write(&config_file, config).expect("write config");
-    let out = util::output_ok(
+    let out = flyd_cli::output_ok(
         Command::new(env!("CARGO_BIN_EXE_flyd"))
             .args(["run", "--duration", &seconds.to_string(), "--config"])
             .arg(&config_file)

@@ -8,49 +8,44 @@
 //!
 //! The figures themselves (over many seeds) are in docs/perception.md; these are guards.
 
-mod util;
+mod flyd_cli;
 
-use std::path::Path;
+/// Runs `flyd replay --scenario SCENARIO --seed SEED ARGS` into a temporary directory; returns
+/// the JSON summary and the text of its trace (trace.csv, a row per generation).
+fn replay_trace(scenario: &str, seed: u64, args: &[&str]) -> (serde_json::Value, String) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("replay");
+    let seed = seed.to_string();
+    let out_dir = out.display().to_string();
+    let mut all = vec!["replay", "--scenario", scenario, "--seed", &seed];
+    all.extend_from_slice(args);
+    all.extend(["--out", &out_dir]);
+    let summary = flyd_cli::flyd_json(all);
+    let trace = std::fs::read_to_string(out.join("trace.csv")).expect("trace.csv");
+    (summary, trace)
+}
 
-/// Runs `flyd replay --scenario NAME ...` into a temporary directory; returns the JSON summary
-/// and the global warning of every generation (trace.csv).
+/// Runs `flyd replay --scenario NAME ...` at `size` with `flies` at 30 km/h; returns the JSON
+/// summary and the global warning of every generation (trace.csv).
 fn replay(
     scenario: &str,
     size: (u32, u32),
     flies: u32,
     seed: u64,
 ) -> (serde_json::Value, Vec<f64>) {
-    let out = std::env::temp_dir().join(format!(
-        "flyd-scenario-{scenario}-{seed}-{}",
-        std::process::id()
-    ));
     let (w, h) = (size.0.to_string(), size.1.to_string());
-    let (seed, flies) = (seed.to_string(), flies.to_string());
-    let out_dir = out.display().to_string();
-    let summary = util::flyd_json([
-        "replay",
-        "--scenario",
+    let flies = flies.to_string();
+    let (summary, trace) = replay_trace(
         scenario,
-        "--seed",
-        &seed,
-        "--width",
-        &w,
-        "--height",
-        &h,
-        "--flies",
-        &flies,
-        "--speed",
-        "30",
-        "--out",
-        &out_dir,
-    ]);
-    let warnings = read_warnings(&out.join("trace.csv"));
-    std::fs::remove_dir_all(&out).ok();
-    (summary, warnings)
+        seed,
+        &[
+            "--width", &w, "--height", &h, "--flies", &flies, "--speed", "30",
+        ],
+    );
+    (summary, read_warnings(&trace))
 }
 
-fn read_warnings(trace: &Path) -> Vec<f64> {
-    let text = std::fs::read_to_string(trace).expect("trace.csv");
+fn read_warnings(text: &str) -> Vec<f64> {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let col = header
@@ -141,21 +136,9 @@ fn driving_towards_a_pedestrian_ends_in_a_stop() {
 /// its near bound. Measured over seeds 1-10: STOP at 15.8-16.4 m and 24.1-28.2 m
 /// (docs/perception.md).
 fn approach(scenario: &str, from: f64, kmh: f64, stopping: f64, slow_ahead: f64) {
-    let out = std::env::temp_dir().join(format!("flyd-{scenario}-{}", std::process::id()));
-    let out_dir = out.display().to_string();
-    let summary = util::flyd_json([
-        "replay",
-        "--scenario",
-        scenario,
-        "--seed",
-        "1",
-        "--out",
-        &out_dir,
-    ]);
+    let (summary, text) = replay_trace(scenario, 1, &[]);
     assert_eq!(summary["speed_source"], "feed", "{summary}");
     assert_eq!(summary["predict_flies"], true, "{summary}");
-    let text = std::fs::read_to_string(out.join("trace.csv")).expect("trace.csv");
-    std::fs::remove_dir_all(&out).ok();
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let col = |name: &str| header.iter().position(|&c| c == name).expect(name);

@@ -8,11 +8,10 @@
 //! of them once the images are healthy again. `SETTLE` is a deadlock-style allowance of 30
 //! frames, not a latency target: the latencies measured are printed.
 
-mod common;
+mod mock_daemon;
 
 use std::time::Duration;
 
-use common::{Frame, GUARD, decode_all};
 use flyd::bus::MemoryBus;
 use flyd::config::{CameraSource, DaemonConfig};
 use flyd::daemon::{self, MonotonicClock, Shutdown};
@@ -21,6 +20,7 @@ use flyd_core::can::messages::StatusMsg;
 use flyd_core::decision::Command;
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
+use mock_daemon::{Frame, GUARD, decode_all};
 
 const FROM: f64 = 1.5;
 const TO: f64 = 3.0;

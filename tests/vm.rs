@@ -11,9 +11,9 @@
 //! the guest is ~10x slower than this machine: the flyd scenarios count camera frames (the
 //! feeder's timeline), not milliseconds. The pedestrian and SIGTERM tests share one boot.
 
+mod flyd_cli;
 #[path = "vm/harness.rs"]
 mod harness;
-mod util;
 
 // The frame pattern the guest's v4l2-smoke writes and checks; checked again here.
 #[path = "vm/guest/src/pattern.rs"]
@@ -22,7 +22,6 @@ mod pattern;
 
 #[path = "vm/can_log.rs"]
 mod can_log;
-#[path = "common/dbc_signals.rs"]
 mod dbc_signals;
 
 use std::collections::BTreeMap;
@@ -1522,7 +1521,7 @@ fn flyd_records_through_v4l2_and_the_recording_replays_to_the_commands_seen_on_v
 /// The Debian package, built by scripts/package (cargo-deb) for the systemd scenario.
 fn debian_package() -> std::path::PathBuf {
     let root = env!("CARGO_MANIFEST_DIR");
-    let out = util::output_ok(
+    let out = flyd_cli::output_ok(
         std::process::Command::new(Path::new(root).join("scripts/package")).current_dir(root),
         "scripts/package",
     );

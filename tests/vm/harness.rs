@@ -160,7 +160,7 @@ fn build_guest_tools() -> BTreeMap<String, PathBuf> {
     if !cfg!(debug_assertions) {
         cmd.arg("--release");
     }
-    let out = crate::util::output_ok(&mut cmd, "cargo build -p flyd-vm-guest");
+    let out = crate::flyd_cli::output_ok(&mut cmd, "cargo build -p flyd-vm-guest");
     let mut tools = BTreeMap::new();
     for line in String::from_utf8_lossy(&out.stdout).lines() {
         let Ok(msg) = serde_json::from_str::<serde_json::Value>(line) else {

@@ -1,5 +1,6 @@
-//! Reading signals out of frames by the DBC's definition, shared by the DBC test and the VM
-//! suite's candump decoder.
+//! Reading signals out of CAN frames by the DBC's definition (start bit, size, byte order,
+//! sign, value tables), shared by the DBC test (tests/dbc.rs) and the candump decoder
+//! (tests/vm/can_log.rs) that tests/can_input.rs and the VM suite use.
 
 use can_dbc::{ByteOrder, Dbc, Message, Signal, ValueDescription, ValueType};
 
