@@ -45,15 +45,21 @@ struct Crate {
 
 impl Crate {
     /// Every `.rs` file under `root` (the crate's `src`), `lib.rs` the crate root; `main.rs`
-    /// is another crate (the binary) and skipped.
+    /// is another crate (the binary) and skipped, with the modules it declares (`mod x;`).
     fn read(root: &Path) -> Self {
         let mut paths = Vec::new();
         walk(root, &mut paths);
         paths.sort();
+        let binary: Vec<PathBuf> = fs::read_to_string(root.join("main.rs"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| l.strip_prefix("mod ")?.strip_suffix(';'))
+            .flat_map(|m| [PathBuf::from(format!("{m}.rs")), PathBuf::from(m)])
+            .collect();
         let mut files = Vec::new();
         for path in paths {
             let rel = path.strip_prefix(root).expect("under the root");
-            if rel == Path::new("main.rs") {
+            if rel == Path::new("main.rs") || binary.iter().any(|b| rel.starts_with(b)) {
                 continue;
             }
             let text = fs::read_to_string(&path).expect("a readable source file");
