@@ -705,7 +705,14 @@ const CORE_LAYERS: &[&[&str]] = &[
     &["decision", "frame"],
     &["engine"],
     &["calib", "sensor"],
-    &["dataset", "faults", "perception", "policy", "rectification"],
+    &[
+        "dataset",
+        "faults",
+        "frame_step",
+        "perception",
+        "policy",
+        "rectification",
+    ],
     &["can"],
 ];
 

@@ -385,6 +385,20 @@ pub struct DaemonConfig {
 }
 
 impl DaemonConfig {
+    /// What the perception's step is set up with besides the perception
+    /// ([`flyd_core::frame_step`]): `[evolution]`'s warm-up and blindness, `[sensor]`,
+    /// `vehicle.predict_flies` and the assumed speed.
+    pub fn step_config(&self) -> flyd_core::frame_step::StepConfig {
+        flyd_core::frame_step::StepConfig {
+            warmup_generations: self.evolution.warmup_generations,
+            blind_matched: self.evolution.blind_matched,
+            blind_pairs: self.evolution.blind_pairs,
+            sensor: self.sensor,
+            predict_flies: self.vehicle.predict_flies,
+            assumed_speed: self.vehicle.assumed_speed,
+        }
+    }
+
     /// The motion monitor's settings: `VCU_Motion`'s Data ID and period from
     /// `can.messages.motion`, staleness from `vehicle.motion_stale_periods`; `None` when
     /// `vehicle.motion = "none"`.

@@ -36,10 +36,11 @@ use crate::source::Side;
 use crate::thread::Shutdown;
 use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
+use flyd_core::frame_step::{FrameStep, NewPair};
 use flyd_core::pairing::{PairOutcome, Pairer};
-use flyd_core::perception::{Perception, RoadEstimate, RoadSource};
-use flyd_core::policy::{BlindDebounce, Blindness};
-use flyd_core::sensor::{ImageHealth, SensorFaults, SensorMonitor, SensorVerdict};
+use flyd_core::perception::{RoadEstimate, RoadSource};
+use flyd_core::policy::Blindness;
+use flyd_core::sensor::{ImageHealth, SensorFaults, SensorVerdict};
 
 /// Counters the control thread reads (statistics, `Relaxed`).
 #[derive(Debug, Default)]
@@ -52,7 +53,8 @@ pub struct EvolutionCounters {
 }
 
 pub struct EvolutionThread {
-    pub perception: Perception,
+    /// The perception of the pairs: motion, sensor checks, engine, stages, blindness.
+    pub step: FrameStep,
     pub left: FrameReader,
     pub right: FrameReader,
     pub pairer: Pairer,
@@ -65,17 +67,11 @@ pub struct EvolutionThread {
     pub stop: Shutdown,
     /// The road estimate's source at the last new pair (its changes are logged).
     pub road_source: Option<RoadSource>,
-    /// Debounces each new pair's image health into sensor faults.
-    pub sensor: SensorMonitor,
     /// The vehicle's trusted motion (`None`: no motion configured): each new pair's
     /// corridor follows its path, and its flies are first moved with it over the time since
-    /// the previous pair (with `predict_flies`).
+    /// the previous pair (with `vehicle.predict_flies`; a motion fault's corridor is the fan
+    /// at `vehicle.assumed_speed_kmh`).
     pub motion: Option<SharedMotion>,
-    /// `vehicle.predict_flies`.
-    pub predict_flies: bool,
-    /// `vehicle.assumed_speed_kmh` in m/s: the speed of the fan a motion fault's corridor
-    /// covers.
-    pub assumed_speed: f64,
     /// Gets each new pair (with the motion its flies were moved with) and the flies every
     /// `record.flies_every` generations.
     pub recorder: Option<crate::record::Recorder>,
@@ -95,21 +91,15 @@ impl EvolutionThread {
         let mut next_turn: Option<Duration> = None;
         // Generations of the current burst still to run back to back.
         let mut burst: u32 = 0;
-        let mut blindness = BlindDebounce::new(self.config.blind_matched, self.config.blind_pairs);
-        let mut verdict = SensorVerdict::default();
         while !self.stop.is_requested() {
             let mut predicted = None;
             let mut motion_unknown = false;
             if let Some((l, r, health)) = self.take_pair() {
+                let mut moved = None;
                 if let (Some((previous, _)), Some(shared)) = (pair, self.motion.as_ref()) {
                     let dt = l.timestamp.saturating_sub(previous.timestamp).as_secs_f64();
                     let motion = shared.get();
-                    self.perception.vehicle_moved(
-                        motion,
-                        dt,
-                        self.predict_flies,
-                        self.assumed_speed,
-                    );
+                    moved = Some((motion, dt));
                     motion_unknown = motion.is_none();
                     predicted = motion.map(|m| PredictEvent {
                         speed: m.speed,
@@ -118,19 +108,22 @@ impl EvolutionThread {
                     });
                 }
                 pair = Some((l, r));
-                let next = self.sensor.observe(&health[0], &health[1]);
-                log_sensor(&verdict, &next, &health);
-                verdict = next;
+                let new_pair = NewPair {
+                    moved,
+                    health: Some(health),
+                };
+                let (was, now) = self.step.pair(&new_pair);
+                log_sensor(&was, &now, &health);
             }
             let Some((left, right)) = pair else {
                 self.stop.sleep(IDLE_WAIT);
                 continue;
             };
             let started = self.clock.now();
-            let report = *self.perception.step(&self.stereo).inspect_err(|e| {
+            let outcome = self.step.generation(&self.stereo).inspect_err(|e| {
                 tracing::error!(error = %Chain(e), "generation failed: evolution stops (SNAPSHOT_STALE)");
             })?;
-            let stats = report.stats;
+            let (report, stats) = (outcome.report, outcome.report.stats);
             if stats.new_frame {
                 self.log_road(&report.road);
             }
@@ -159,7 +152,7 @@ impl EvolutionThread {
                 recorder.flies(
                     stats.generation,
                     finished,
-                    self.perception.engine().population(),
+                    self.step.perception().engine().population(),
                 );
             }
             let generation_time = finished.saturating_sub(started);
@@ -172,12 +165,12 @@ impl EvolutionThread {
             if overrun {
                 c.overruns.fetch_add(1, Ordering::Relaxed);
             }
-            let warming_up = stats.generation < self.config.warmup_generations;
+            let warming_up = outcome.warming_up;
             let Blindness {
                 blind,
                 changed,
                 pairs,
-            } = blindness.observe(warming_up, stats.matched, stats.new_frame);
+            } = outcome.blindness;
             if changed {
                 if blind {
                     tracing::warn!(
@@ -191,8 +184,7 @@ impl EvolutionThread {
                     tracing::info!(matched = stats.matched, "perception matches again");
                 }
             }
-            let mut sensor = verdict.faults;
-            sensor.set(SensorFaults::BLIND, blind);
+            let sensor = outcome.sensor.faults;
             let snapshot = Snapshot {
                 generation: stats.generation,
                 global_warning: stats.global_warning,
@@ -204,8 +196,8 @@ impl EvolutionThread {
                 road: report.road,
                 tracked: report.tracked,
                 corridor: report.corridor,
-                path: self.perception.path_estimate(),
-                search_far: self.perception.search_far(),
+                path: self.step.perception().path_estimate(),
+                search_far: self.step.perception().search_far(),
                 generation_time,
                 overrun,
                 left,

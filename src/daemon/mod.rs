@@ -71,9 +71,9 @@ use flyd_core::decision::{Decider, DecisionConfigError};
 use flyd_core::engine::EngineError;
 use flyd_core::faults::{FaultConfig, FaultMonitor};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::frame_step::FrameStep;
 use flyd_core::pairing::Pairer;
 use flyd_core::perception::{Perception, PerceptionError};
-use flyd_core::sensor::SensorMonitor;
 pub use notify::ServiceNotifier;
 use ring::frame_ring_of;
 
@@ -355,7 +355,7 @@ pub fn run(
     )?;
     threads.rows = Some(rows_worker);
     let evolution = EvolutionThread {
-        perception,
+        step: FrameStep::new(perception, config.step_config()),
         left: left_reader,
         right: right_reader,
         pairer: Pairer::new(config.cameras.timestamp_tolerance),
@@ -366,10 +366,7 @@ pub fn run(
         config: config.evolution,
         stop: stop.clone(),
         road_source: None,
-        sensor: SensorMonitor::new(config.sensor),
         motion: config.motion().map(|_| motion.clone()),
-        predict_flies: config.vehicle.predict_flies,
-        assumed_speed: config.vehicle.assumed_speed,
         recorder: recorder.clone(),
         rows: Some(rows_monitor),
     };

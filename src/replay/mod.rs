@@ -51,14 +51,14 @@ use flyd_core::decision::{
 };
 use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::frame_step::{FrameStep, NewPair, StepConfig};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
-use flyd_core::policy::{BlindDebounce, InputSource, PeriodInput, camera_error};
+use flyd_core::policy::{InputSource, PeriodInput};
 use flyd_core::rectification::{RowCorrection, RowOffset, max_disparity, residual_row_offset};
-use flyd_core::sensor::{
-    ImageCheck, ImageHealth, SensorConfig, SensorFaults, SensorMonitor, SensorVerdict,
-};
+use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorVerdict};
+use flyd_core::status::FaultBits;
 use image::RgbImage;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -270,9 +270,20 @@ impl Replay {
 /// frame every `settings.per_frame` generations (the last frame stays once the feed has no
 /// more).
 pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, ReplayError> {
-    let mut perception = Perception::new(feed.rig(), settings.params.clone(), settings.perception)?
+    let perception = Perception::new(feed.rig(), settings.params.clone(), settings.perception)?
         .with_warmup(settings.warmup_generations)
         .with_reach(settings.decision);
+    let mut step = FrameStep::new(
+        perception,
+        StepConfig {
+            warmup_generations: settings.warmup_generations,
+            blind_matched: settings.blind_matched,
+            blind_pairs: settings.blind_pairs,
+            sensor: settings.sensor,
+            predict_flies: settings.predict,
+            assumed_speed: settings.speed,
+        },
+    );
     let mut decider = Decider::new(settings.decision)?;
     let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
@@ -294,9 +305,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let mut index = None;
     let mut row_correction = None;
     let mut checks = [ImageCheck::new(w, h), ImageCheck::new(rw, rh)];
-    let mut monitor = SensorMonitor::new(settings.sensor);
-    let (mut health, mut verdict) = ([ImageHealth::default(); 2], SensorVerdict::default());
-    let mut blindness = BlindDebounce::new(settings.blind_matched, settings.blind_pairs);
+    let mut health = [ImageHealth::default(); 2];
     // A command each generation: the period's input is that generation's snapshot.
     let mut period = PeriodInput::default();
     let mut alarm: Option<decided::Decided> = None;
@@ -305,12 +314,13 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         let mut predicted = None;
         let new_frame = index != Some(wanted);
         if new_frame {
+            let mut moved = None;
             if let Some(previous) = index
                 && let Some(motion) = feed.motion(previous)
             {
                 let dt = (wanted - previous) as f64 / fps;
                 // The corridor follows the motion's path either way, as the daemon's does.
-                perception.vehicle_moved(Some(motion), dt, settings.predict, settings.speed);
+                moved = Some((Some(motion), dt));
                 predicted = Some((motion, dt));
             }
             feed.load(wanted, &mut frame, &mut left)?;
@@ -348,34 +358,33 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 // The same images shown again are a still scene, not a frozen camera.
                 health.iter_mut().for_each(|h| h.unchanged = None);
             }
-            verdict = monitor.observe(&health[0], &health[1]);
+            step.pair(&NewPair {
+                moved,
+                health: Some(health),
+            });
         }
         // On the frames' clock: the generations of a frame spread over its period.
         let time = Duration::from_secs_f64((g as f64 / per_frame as f64) / fps);
         let t = Instant::now();
-        perception.evolve(&frame)?;
+        step.evolve(&frame)?;
         let observed = Instant::now();
-        let report = *perception.observe(&frame)?;
+        let outcome = step.observe(&frame)?;
+        let (report, sensor) = (outcome.report, outcome.sensor);
         let (elapsed, stage) = (t.elapsed(), observed.elapsed());
         let speed = match feed.motion(wanted) {
             Some(m) if !settings.fixed_speed => m.speed.max(0.0),
             _ => settings.speed,
         };
-        let warming_up = report.stats.generation < settings.warmup_generations;
-        let blind = blindness
-            .observe(warming_up, report.stats.matched, new_frame)
-            .blind;
-        let mut sensor = verdict;
-        sensor.faults.set(SensorFaults::BLIND, blind);
-        let faults = camera_error(sensor.faults);
-        let snapshot = DecisionInput {
-            global_warning: report.stats.global_warning,
-            obstacle: report.tracked.decision_distance(),
-            // The evidence's age on the frames' clock, and a frame until the next.
-            latency: (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps,
-            ..DecisionInput::at_speed(None, speed)
-        };
-        let input = DecisionInput { faults, ..snapshot };
+        // The evidence's age on the frames' clock, and a frame until the next.
+        let latency = (time.as_secs_f64() - wanted as f64 / fps).max(0.0) + 1.0 / fps;
+        let input = outcome.decision_input(speed, latency);
+        let (faults, snapshot) = (
+            input.faults,
+            DecisionInput {
+                faults: FaultBits::empty(),
+                ..input
+            },
+        );
         if report.stats.generation > settings.warmup_generations {
             period.observe(snapshot);
         }
@@ -397,7 +406,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 feed.frame_name(wanted),
                 time,
                 speed,
-                &perception,
+                step.perception(),
                 &report,
                 &left,
                 feed.rig(),
@@ -409,7 +418,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 rec.frames(&frame, frame_time, report.stats.generation, predicted);
             }
             rec.generation(
-                &perception,
+                step.perception(),
                 &report,
                 time,
                 elapsed,
@@ -428,13 +437,14 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             command: decision.map_or(decider.command(), |d| d.command),
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
             speed,
-            search_far: perception.search_far(),
+            search_far: step.perception().search_far(),
             elapsed,
             stage,
             health,
             sensor,
         });
     }
+    let mut perception = step.into_perception();
     let ambiguity = all_ambiguities(perception.engine_mut(), &frame)?;
     let row_offset =
         residual_row_offset(&frame, max_disparity(feed.rig(), settings.params.min_depth));

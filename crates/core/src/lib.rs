@@ -18,6 +18,7 @@ pub mod decision;
 pub mod engine;
 pub mod faults;
 pub mod frame;
+pub mod frame_step;
 pub mod geometry;
 pub mod isa;
 pub mod kinematics;

@@ -7,7 +7,7 @@
 //! and latency then, and when each command was decided with which faults. The replay takes
 //! those as given and recomputes everything else:
 //!
-//! 1. the perception: the recorded frames prepared again, [`Perception::step`] generation
+//! 1. the perception: the recorded frames prepared again, [`FrameStep`] generation
 //!    by generation (each pair from its first generation to the next pair's), the flies
 //!    predicted with the recorded motion; each recorded snapshot's global warning and
 //!    obstacle are compared with the replayed generation's (the first difference is where
@@ -31,10 +31,11 @@ use std::time::Duration;
 use crate::capture::{CaptureFormat, FrameConverter};
 use crate::config::DaemonConfig;
 use crate::record::read::{ControlEvent, Frame, Recording};
-use crate::record::topics::PairEvent;
+use crate::record::topics::{PairEvent, PredictEvent};
 use crate::replay::ReplayError;
 use crate::source::Side;
 use flyd_core::frame::{PixelFormat, PreparedImage, StereoFrame};
+use flyd_core::frame_step::{FrameStep, NewPair};
 use flyd_core::kinematics::VehicleMotion;
 use flyd_core::perception::Perception;
 
@@ -223,11 +224,11 @@ fn replay_perception(
         ..
     } = config.load_calibration()?;
     let (w, h) = (config.cameras.width, config.cameras.height);
-    let mut perception = Perception::new(&rig, config.engine.clone(), config.perception)?
+    let perception = Perception::new(&rig, config.engine.clone(), config.perception)?
         .with_warmup(config.evolution.warmup_generations)
         .with_reach(config.decision);
-    let predict_flies = config.vehicle.predict_flies;
-    let assumed_speed = config.vehicle.assumed_speed;
+    // The recorded decisions carry the sensor faults: the images' health is not checked again.
+    let mut step = FrameStep::new(perception, config.step_config());
     let image = || PreparedImage::new(w, h).map(|i| i.retain_pixels_if(recorder.is_some()));
     let right = image()?.with_row_shift(right_row_offset_px);
     let mut stereo = StereoFrame::new(image()?, right, 0);
@@ -286,7 +287,7 @@ fn replay_perception(
         }
         // The generations the daemon ran on the previous pair before this one came.
         while generation + 1 < pair.generation && next > 0 {
-            generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
+            generation = run_generation(&mut step, &stereo, &mut outcomes, recorder, last_at)?;
         }
         for side in [Side::Left, Side::Right] {
             if let Some(frame) = pending[side as usize].pop_front() {
@@ -325,16 +326,19 @@ fn replay_perception(
         stereo.id = pair.pair_id;
         // As the daemon did: the flies moved only with vehicle.predict_flies; a motion fault's
         // fan at the assumed speed.
-        if let Some(p) = pair.predict {
-            let motion = VehicleMotion {
-                speed: p.speed,
-                yaw_rate: p.yaw_rate,
-            };
-            perception.vehicle_moved(Some(motion), p.dt, predict_flies, assumed_speed);
-        } else if pair.motion_unknown {
-            perception.vehicle_moved(None, 0.0, predict_flies, assumed_speed);
-        }
-        generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
+        let motion = |p: PredictEvent| VehicleMotion {
+            speed: p.speed,
+            yaw_rate: p.yaw_rate,
+        };
+        let moved = match pair.predict {
+            Some(p) => Some((Some(motion(p)), p.dt)),
+            None => pair.motion_unknown.then_some((None, 0.0)),
+        };
+        step.pair(&NewPair {
+            moved,
+            health: None,
+        });
+        generation = run_generation(&mut step, &stereo, &mut outcomes, recorder, last_at)?;
         if generation != pair.generation {
             summary.diverge(
                 "recording",
@@ -352,7 +356,7 @@ fn replay_perception(
     // The generations the daemon ran on the last pair, up to the last one the decision took.
     if summary.divergence.is_none() && next > 0 {
         while generation < last_generation {
-            generation = step(&mut perception, &stereo, &mut outcomes, recorder, last_at)?;
+            generation = run_generation(&mut step, &stereo, &mut outcomes, recorder, last_at)?;
         }
     }
     summary.generations = generation;
@@ -375,17 +379,17 @@ fn jpeg(
         .ok_or_else(|| ReplayError::Jpeg(Box::new(std::io::Error::other("no MJPEG converter"))))
 }
 
-fn step(
-    perception: &mut Perception,
+fn run_generation(
+    step: &mut FrameStep,
     stereo: &StereoFrame,
     outcomes: &mut Vec<Option<Outcome>>,
     recorder: Option<&crate::record::Recorder>,
     at: Duration,
 ) -> Result<u64, ReplayError> {
-    let report = *perception.step(stereo)?;
+    let report = step.generation(stereo)?.report;
     let g = report.stats.generation;
     if let Some(r) = recorder {
-        r.flies(g, at, perception.engine().population());
+        r.flies(g, at, step.perception().engine().population());
     }
     let outcome = Outcome {
         global_warning: report.stats.global_warning,
@@ -393,8 +397,8 @@ fn step(
         matched: report.stats.matched,
         road: report.road,
         tracked: report.tracked,
-        path: perception.path_estimate(),
-        search_far: perception.search_far(),
+        path: step.perception().path_estimate(),
+        search_far: step.perception().search_far(),
     };
     // Generations count up by one from 1: this is the next slot.
     if usize::try_from(g).is_ok_and(|i| i == outcomes.len()) {
