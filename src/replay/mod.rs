@@ -385,11 +385,12 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
                 ..input
             },
         );
-        if report.stats.generation > settings.warmup_generations {
+        // As the daemon's control thread: a snapshot of a population still warming up is not
+        // taken (the daemon's decider takes its fault path then: the safe command; the
+        // replay's is not asked).
+        if !outcome.warming_up {
             period.observe(snapshot);
         }
-        // Before the warm-up ends the replay's decider is not asked (the daemon's takes its
-        // fault path then: the safe command).
         let chosen = period.choose(|| None);
         let decision = (chosen.from != InputSource::Untrusted)
             .then(|| decider.update(chosen.with_faults(faults), time));

@@ -294,7 +294,7 @@ fn the_clothoid_estimator_measures_how_the_curvature_changes() {
 #[test]
 fn the_gated_clothoid_holds_both_plausible_paths_and_says_how_far_apart_they_are() {
     let mut e = PathEstimator::with_model(PathModel::ClothoidGated { window: 0.3 });
-    let mut last = into_a_bend(&mut e, 100);
+    let last = into_a_bend(&mut e, 100);
     // The centre line keeps steering in; the gate is where the vehicle goes if it stops.
     assert!(last.held.rate > 0.0 && last.now.rate == 0.0, "{last:?}");
     assert_eq!(last.held.curvature, last.now.curvature);
