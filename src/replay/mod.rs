@@ -175,7 +175,7 @@ pub struct Settings {
     pub sensor: SensorConfig,
     /// Generations before the decider takes input.
     pub warmup_generations: u64,
-    /// The blind-camera debounce ([`BlindDebounce`], `evolution.blind_matched` and
+    /// The blind-camera debounce ([`flyd_core::policy::BlindDebounce`], `evolution.blind_matched` and
     /// `evolution.blind_pairs`): the daemon's, BLIND being CAMERA_ERROR here too.
     pub blind_matched: f64,
     pub blind_pairs: u32,
