@@ -6,7 +6,7 @@
 //! Every item without an obstacle ("clear", "no-stop") must meet its label on every seed;
 //! an item with a car in the lane ("stop") on at least 2 of the 3 seeds. Measured over 40
 //! seeds, the crossing car of seq12 frame 11 is stopped for on ~85 % of them
-//! (docs/perception.md: the figures and what stands in the way of 100 %).
+//! (docs/results.md: the figures; docs/perception.md: what stands in the way of 100 %).
 
 use std::process::Command;
 

@@ -10,7 +10,7 @@
 //! - On the sequence the yellow car crossing into the corridor on its last frame is seen
 //!   within 10 % of its distance (13.8 m, from SGBM on the car's front; docs/perception.md).
 //!
-//! The figures themselves are in docs/perception.md; these are guards at what was measured.
+//! The figures themselves are in docs/results.md; these are guards at what was measured.
 
 mod flyd_cli;
 

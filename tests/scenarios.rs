@@ -6,7 +6,7 @@
 //!   after the warm-up, at 640x480 with 5000 flies and at the VM suite's 320x240 with 1000;
 //! - driving towards a pedestrian ends in a STOP.
 //!
-//! The figures themselves (over many seeds) are in docs/perception.md; these are guards.
+//! The figures themselves (over many seeds) are in docs/results.md; these are guards.
 
 mod flyd_cli;
 
