@@ -68,10 +68,11 @@
 //!    verified again. (The fittest flies of hw-mock's pedestrian measure 0.002-0.1 along the
 //!    line, those of its car 0.25-0.95: the car's texture is mostly horizontal lines.)
 //!
-//! The obstacle is that cluster: its median depth and lateral offset, the heights of its lowest
-//! and highest fly above the road, its size, and a confidence that grows with it (100 % at four
-//! times `min_flies`). Whether it persisted over frames is the [`super::track::Tracker`]'s.
-//! No allocation: every buffer is sized in [`ObstacleFinder::new`].
+//! The obstacle is that cluster: its near face (the first quartile of its flies' distances) and
+//! lateral offset, the heights of its lowest and highest fly above the road, its size, and a
+//! confidence that grows with it (100 % at four times `min_flies`). Whether it persisted over
+//! frames is the [`super::track::Tracker`]'s. No allocation: every buffer is sized in
+//! [`ObstacleFinder::new`].
 
 use serde::Serialize;
 
