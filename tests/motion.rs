@@ -195,8 +195,16 @@ fn decisions_follow_the_measured_speed_and_fall_back_to_the_assumed_one() {
     while vcu.garbage.load(Ordering::Relaxed) < 20 {
         std::thread::sleep(Duration::from_millis(10));
     }
-    let (report, frames) = daemon.stop();
+    // Then silence, and five more FLYD_Status: five turns of the control loop after the last
+    // bad frame, each reading up to 64 frames, so every bad frame was read however busy the
+    // machine (judged by what the daemon sent, not by the clock).
+    vcu.send(SEND_NOTHING, 0.0);
     let periods = u64::from(vcu.garbage.load(Ordering::Relaxed));
+    let sent = statuses(&daemon.wait_for("the VCU silent", |_| true)).len();
+    daemon.wait_for("five FLYD_Status after the bad frames", |f| {
+        statuses(f).len() >= sent + 5
+    });
+    let (report, frames) = daemon.stop();
     let garbage: Vec<_> = statuses(&frames[faulted_at..]).to_vec();
     assert!(
         garbage.iter().all(|s| s.motion_fault),
@@ -212,10 +220,9 @@ fn decisions_follow_the_measured_speed_and_fall_back_to_the_assumed_one() {
         "the assumed speed keeps STOP 3 m before the obstacle: {}",
         summary(&frames[faulted_at..])
     );
-    // 5 bad frames a period, every one rejected (those of the last period or two may not have
-    // been read before the stop).
+    // 5 bad frames a period, every one rejected.
     assert!(
-        report.control.motion_rejected >= 5 * (periods - 2),
+        report.control.motion_rejected >= 5 * periods,
         "{periods} periods: {:?}",
         report.control
     );
