@@ -386,11 +386,10 @@ pub struct DaemonConfig {
 
 impl DaemonConfig {
     /// What the perception's step is set up with besides the perception
-    /// ([`flyd_core::frame_step`]): `[evolution]`'s warm-up and blindness, `[sensor]`,
+    /// ([`flyd_core::frame_step`]): `[evolution]`'s blindness, `[sensor]`,
     /// `vehicle.predict_flies` and the assumed speed.
     pub fn step_config(&self) -> flyd_core::frame_step::StepConfig {
         flyd_core::frame_step::StepConfig {
-            warmup_generations: self.evolution.warmup_generations,
             blind_matched: self.evolution.blind_matched,
             blind_pairs: self.evolution.blind_pairs,
             sensor: self.sensor,

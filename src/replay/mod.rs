@@ -276,7 +276,6 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let mut step = FrameStep::new(
         perception,
         StepConfig {
-            warmup_generations: settings.warmup_generations,
             blind_matched: settings.blind_matched,
             blind_pairs: settings.blind_pairs,
             sensor: settings.sensor,

@@ -18,11 +18,9 @@ use crate::perception::{Perception, PerceptionReport};
 use crate::policy::{BlindDebounce, Blindness, camera_error};
 use crate::sensor::{ImageHealth, SensorConfig, SensorFaults, SensorMonitor, SensorVerdict};
 
-/// What a [`FrameStep`] is set up with besides its [`Perception`].
+/// What a [`FrameStep`] is set up with besides its [`Perception`] (whose warm-up it takes).
 #[derive(Debug, Clone, Copy)]
 pub struct StepConfig {
-    /// Generations before the population is trusted (`evolution.warmup_generations`).
-    pub warmup_generations: u64,
     /// The blindness debounce (`evolution.blind_matched`, `evolution.blind_pairs`).
     pub blind_matched: f64,
     pub blind_pairs: u32,
@@ -120,7 +118,8 @@ impl FrameStep {
     pub fn observe(&mut self, frame: &StereoFrame) -> Result<Outcome, EngineError> {
         let report = *self.perception.observe(frame)?;
         let stats = report.stats;
-        let warming_up = stats.generation < self.config.warmup_generations;
+        // The perception's own warm-up (`Perception::with_warmup`): one number for both.
+        let warming_up = stats.generation < self.perception.warmup();
         let blindness = self
             .blindness
             .observe(warming_up, stats.matched, stats.new_frame);
@@ -196,7 +195,6 @@ mod tests {
     #[test]
     fn a_step_is_the_perceptions_generation_with_the_sensor_faults_of_its_pairs() {
         let config = StepConfig {
-            warmup_generations: 3,
             blind_matched: 0.0,
             blind_pairs: 2,
             sensor: SensorConfig::default(),

@@ -246,6 +246,11 @@ impl Perception {
         }
     }
 
+    /// Generations before the population is trusted ([`Perception::with_warmup`]).
+    pub fn warmup(&self) -> u64 {
+        self.warmup
+    }
+
     /// The search follows the speed: on each new frame after a [`Perception::predict`] or
     /// [`Perception::follow`], the flies and the obstacle stage reach the SLOW distance of
     /// `decision` at that motion's speed, never less than configured and at most what the
