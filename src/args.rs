@@ -19,7 +19,7 @@ pub(crate) struct Cli {
 #[derive(Subcommand)]
 pub(crate) enum Command {
     /// Run the evolution on a stereo pair or a hw-mock scenario and write what it found.
-    Replay(ReplayArgs),
+    Replay(Box<ReplayArgs>),
     /// Replay the labelled recordings of a manifest (eval/*.toml) over seeds and judge every
     /// run against its label; exits 1 when one fails.
     Eval(EvalArgs),
@@ -131,6 +131,15 @@ pub(crate) struct ReplayArgs {
     /// their own speed, the flies moved with it).
     #[arg(long)]
     pub(crate) scenario: Option<String>,
+    /// A closed-loop case file (docs/closed-loop.md): hw-mock's vehicle obeys the commands,
+    /// its cameras rendered from where it really is; the summary says whether it stopped
+    /// short, how hard it braked, and `--out` gets closed_loop.csv and closed_loop.svg.
+    #[arg(long, value_name = "FILE.toml", conflicts_with_all = ["scenario", "sequence", "left"])]
+    pub(crate) case: Option<PathBuf>,
+    /// With --case: which of the file's cases (as `flyd eval` names them, e.g.
+    /// `car-stationary-30kmh`; default: the file's only one).
+    #[arg(long, value_name = "NAME", requires = "case")]
+    pub(crate) case_name: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
     /// sequence, what the daemon runs at --fps: a burst of evolution.burst_generations, then
     /// one per evolution.generation_period_ms).

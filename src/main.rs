@@ -35,7 +35,7 @@ macro_rules! say {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Replay(args) => replay_command(args),
+        Command::Replay(args) => replay_command(*args),
         Command::Eval(args) => eval_command(&args),
         Command::Bench(args) => bench_command(args),
         Command::Run(args) => cmd_run(&args),
@@ -55,6 +55,37 @@ fn main() -> ExitCode {
     }
 }
 
+/// The case `name` of the closed-loop case file `file` (its only one when no name is given).
+fn closed_loop_case(file: &Path, name: Option<&str>) -> Result<hw_mock::closed_loop::Case> {
+    let text =
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let parsed: hw_mock::closed_loop::CaseFile =
+        toml::from_str(&text).with_context(|| format!("{}", file.display()))?;
+    let mut cases = parsed
+        .cases()
+        .with_context(|| format!("{}", file.display()))?;
+    let names = || {
+        cases
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    match name {
+        Some(n) => match cases.iter().position(|c| c.name == n) {
+            Some(i) => Ok(cases.swap_remove(i)),
+            None => bail!("{}: no case '{n}' (its cases: {})", file.display(), names()),
+        },
+        None if cases.len() == 1 => Ok(cases.swap_remove(0)),
+        None => bail!(
+            "{} holds {} cases: name one with --case-name ({})",
+            file.display(),
+            cases.len(),
+            names()
+        ),
+    }
+}
+
 fn replay_command(args: ReplayArgs) -> Result<()> {
     if let Some(path) = &args.mcap {
         return replay_recording(path, &args);
@@ -66,7 +97,13 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         Some(path) => config::check(path)?,
         None => DaemonConfig::with_rig(flyd::mock::mock_rig(640, 480)?),
     };
-    let source = if let Some(name) = &args.scenario {
+    let source = if let Some(file) = &args.case {
+        Source::ClosedLoop {
+            case: Box::new(closed_loop_case(file, args.case_name.as_deref())?),
+            width: args.width,
+            height: args.height,
+        }
+    } else if let Some(name) = &args.scenario {
         Source::Scenario {
             name: name.clone(),
             width: args.width,

@@ -25,9 +25,11 @@
 //!   invalid sensor model are [`RenderError`]s. Invalid obstacles (non-finite or degenerate) are
 //!   simply not drawn.
 
+pub mod closed_loop;
 mod noise;
 mod render;
 mod scenario;
+pub mod vehicle;
 pub mod world;
 
 pub use noise::splitmix64;

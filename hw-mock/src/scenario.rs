@@ -91,6 +91,18 @@ const fn ramp(k: f64) -> [Segment; 5] {
     ]
 }
 
+/// hw-mock's roads of changing curvature by the names the scenarios give them (`ramp-30`,
+/// `ramp-40`, `s-bend-40`): the name as stored, and the road.
+pub fn road_by_name(name: &str) -> Option<(&'static str, &'static Road)> {
+    let (name, geometry) = match name {
+        "ramp-30" => ("ramp-30", Geometry::Ramp30),
+        "ramp-40" => ("ramp-40", Geometry::Ramp40),
+        "s-bend-40" => ("s-bend-40", Geometry::SBend40),
+        _ => return None,
+    };
+    Some((name, geometry.road()))
+}
+
 impl Geometry {
     /// The road, built the first time it is asked for.
     fn road(self) -> &'static Road {

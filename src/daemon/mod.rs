@@ -67,7 +67,7 @@ use evolution::{EvolutionCounters, EvolutionThread};
 use flyd_core::can::bus::{CanBus, CanReceiver};
 use flyd_core::can::motion_monitor::MotionMonitor;
 use flyd_core::can::{CanConfigError, Transmitter};
-use flyd_core::decision::{Decider, DecisionConfigError};
+use flyd_core::decision::DecisionConfigError;
 use flyd_core::engine::EngineError;
 use flyd_core::faults::{FaultConfig, FaultMonitor};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
@@ -267,7 +267,7 @@ pub fn run(
         .search_far()
         .max(perception.reach().map_or(0.0, |r| r.cap()));
     log_resolution(config, &rig);
-    let decider = Decider::new(config.decision)?;
+    let decision = flyd_core::policy::DecisionStep::new(config.decision)?;
     let recording = start_recording(config, &rig)?;
     let recorder = recording.as_ref().map(|r| r.recorder.clone());
     let tx = Transmitter::new(
@@ -380,7 +380,7 @@ pub fn run(
     let start = clock.now();
     let control = ControlThread {
         tx,
-        decider,
+        decision,
         monitor: FaultMonitor::new(
             FaultConfig {
                 stale_timeout: config.cameras.stale_timeout(),

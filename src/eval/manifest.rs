@@ -26,6 +26,15 @@
 //!   obstacle appears;
 //! - `stop-before`: the first STOP while the obstacle, `from` m ahead at frame 0 with the
 //!   vehicle at `kmh`, is still farther than `stopping` m.
+//!
+//! Closed-loop cases (hw-mock's vehicle obeys the commands: [`crate::replay::closed_loop`])
+//! come from case files the manifest names, `cases = ["closed-loop/stationary.toml"]`
+//! (relative to it; the format is hw-mock's [`hw_mock::closed_loop`], documented in
+//! docs/closed-loop.md), each case an item with its own label, judged by outcome:
+//! - `no-contact`: the vehicle never touched an actor;
+//! - `impact-below`: no contact, or one slower than `impact_kmh`;
+//! - `no-activation`: no SLOW and no STOP once the system was armed;
+//! - `peak-decel-below`: the brakes never gave `decel` m/s^2 or more.
 
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -36,7 +45,10 @@ use std::path::{Path, PathBuf};
 pub struct Manifest {
     /// Where the items' folders are, relative to the manifest (`--data` overrides it).
     pub data: Option<PathBuf>,
-    #[serde(rename = "item")]
+    /// Closed-loop case files, relative to the manifest: each case an item.
+    #[serde(default)]
+    pub cases: Vec<PathBuf>,
+    #[serde(rename = "item", default)]
     pub items: Vec<Item>,
 }
 
@@ -96,6 +108,15 @@ pub struct Item {
     pub kmh: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopping: Option<f64>,
+    /// `impact-below`: the impact speed a contact must stay under, km/h.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub impact_kmh: Option<f64>,
+    /// `peak-decel-below`: the deceleration the brakes must stay under, m/s^2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decel: Option<f64>,
+    /// A closed-loop case (from the manifest's `cases`, not written in an item).
+    #[serde(skip)]
+    pub case: Option<Box<hw_mock::closed_loop::Case>>,
 }
 
 /// What an item must show.
@@ -108,6 +129,10 @@ pub enum Expect {
     Stop,
     StopWithin,
     StopBefore,
+    NoContact,
+    ImpactBelow,
+    NoActivation,
+    PeakDecelBelow,
 }
 
 impl Expect {
@@ -119,13 +144,46 @@ impl Expect {
             Self::Stop => "stop",
             Self::StopWithin => "stop-within",
             Self::StopBefore => "stop-before",
+            Self::NoContact => "no-contact",
+            Self::ImpactBelow => "impact-below",
+            Self::NoActivation => "no-activation",
+            Self::PeakDecelBelow => "peak-decel-below",
         }
+    }
+
+    /// The label of this name.
+    pub fn named(name: &str) -> Option<Self> {
+        [
+            Self::Clear,
+            Self::NoStop,
+            Self::NothingNearer,
+            Self::Stop,
+            Self::StopWithin,
+            Self::StopBefore,
+            Self::NoContact,
+            Self::ImpactBelow,
+            Self::NoActivation,
+            Self::PeakDecelBelow,
+        ]
+        .into_iter()
+        .find(|e| e.name() == name)
+    }
+
+    /// Whether the label judges a closed loop's outcome.
+    pub fn closed_loop(self) -> bool {
+        matches!(
+            self,
+            Self::NoContact | Self::ImpactBelow | Self::NoActivation | Self::PeakDecelBelow
+        )
     }
 
     /// Whether the item holds an obstacle the vehicle must stop for (the others hold none
     /// that it must brake for: every SLOW or STOP there is a false one).
     pub fn wants_stop(self) -> bool {
-        matches!(self, Self::Stop | Self::StopWithin | Self::StopBefore)
+        matches!(
+            self,
+            Self::Stop | Self::StopWithin | Self::StopBefore | Self::NoContact | Self::ImpactBelow
+        )
     }
 }
 
@@ -155,10 +213,15 @@ impl Manifest {
             path: path.display().to_string(),
             source,
         })?;
-        let manifest: Self = toml::from_str(&text).map_err(|e| ManifestError::Parse {
+        let mut manifest: Self = toml::from_str(&text).map_err(|e| ManifestError::Parse {
             path: path.display().to_string(),
             message: e.to_string(),
         })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        for file in manifest.cases.clone() {
+            let items = case_items(&base.join(&file))?;
+            manifest.items.extend(items);
+        }
         manifest.check(path)?;
         Ok(manifest)
     }
@@ -182,14 +245,32 @@ impl Manifest {
             let sources = [&item.pair, &item.sequence, &item.scenario]
                 .iter()
                 .filter(|s| s.is_some())
-                .count();
+                .count()
+                + usize::from(item.case.is_some());
             if sources != 1 {
                 return Err(error(
                     item,
                     "needs exactly one of pair, sequence, scenario".into(),
                 ));
             }
-            if item.scenario.is_none() && item.rig.is_none() == item.mount.is_none() {
+            if item.expect.closed_loop() != item.case.is_some() {
+                return Err(error(
+                    item,
+                    format!(
+                        "expect = \"{}\" {}",
+                        item.expect.name(),
+                        if item.case.is_some() {
+                            "judges no closed loop's outcome"
+                        } else {
+                            "belongs to a closed-loop case (a manifest's `cases`)"
+                        }
+                    ),
+                ));
+            }
+            if item.scenario.is_none()
+                && item.case.is_none()
+                && item.rig.is_none() == item.mount.is_none()
+            {
                 return Err(error(
                     item,
                     "needs its rig: `rig` (a calibration file) or `mount` (the folder's \
@@ -231,6 +312,9 @@ impl Manifest {
                     ("kmh", item.kmh.is_some()),
                     ("stopping", item.stopping.is_some()),
                 ],
+                Expect::NoContact | Expect::NoActivation => &[],
+                Expect::ImpactBelow => &[("impact_kmh", item.impact_kmh.is_some())],
+                Expect::PeakDecelBelow => &[("decel", item.decel.is_some())],
             };
             if let Some((key, _)) = needs.iter().find(|(_, given)| !given) {
                 return Err(error(
@@ -240,6 +324,68 @@ impl Manifest {
             }
         }
         Ok(())
+    }
+}
+
+/// The items of a closed-loop case file: each case one, its label its own.
+fn case_items(path: &Path) -> Result<Vec<Item>, ManifestError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ManifestError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let parse = |message: String| ManifestError::Parse {
+        path: path.display().to_string(),
+        message,
+    };
+    let file: hw_mock::closed_loop::CaseFile =
+        toml::from_str(&text).map_err(|e| parse(e.to_string()))?;
+    let cases = file.cases().map_err(|e| parse(e.to_string()))?;
+    cases
+        .into_iter()
+        .map(|case| {
+            let expect = Expect::named(&case.expect)
+                .ok_or_else(|| parse(format!("case '{}': unknown label", case.name)))?;
+            Ok(Item {
+                name: case.name.clone(),
+                expect,
+                impact_kmh: case.impact_kmh,
+                decel: case.decel,
+                case: Some(Box::new(case)),
+                ..Item::empty()
+            })
+        })
+        .collect()
+}
+
+impl Item {
+    /// An item of no source and the label `clear`, to be filled in.
+    fn empty() -> Self {
+        Self {
+            name: String::new(),
+            pair: None,
+            frame: None,
+            sequence: None,
+            scenario: None,
+            rig: None,
+            mount: None,
+            truth: None,
+            can_input: None,
+            speed_kmh: None,
+            fps: None,
+            size: None,
+            flies: None,
+            expect: Expect::Clear,
+            frames: None,
+            distance: None,
+            tolerance: None,
+            generations: None,
+            from: None,
+            kmh: None,
+            stopping: None,
+            impact_kmh: None,
+            decel: None,
+            case: None,
+        }
     }
 }
 
@@ -292,7 +438,12 @@ mod tests {
 
     #[test]
     fn shipped_manifests_are_valid() {
-        for m in ["eval/real.toml", "eval/fixtures.toml", "eval/hw-mock.toml"] {
+        for m in [
+            "eval/real.toml",
+            "eval/fixtures.toml",
+            "eval/hw-mock.toml",
+            "eval/closed-loop.toml",
+        ] {
             let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(m);
             let manifest = Manifest::load(&path).unwrap_or_else(|e| panic!("{m}: {e}"));
             assert!(manifest.items.len() >= 10, "{m}");

@@ -52,12 +52,21 @@ pub enum EvalError {
 /// The replay request of `item`, seed `seed`, its rig at `rig` (when it has a folder).
 fn request(item: &Item, data: &Path, rig: Option<&Path>, seed: u64) -> Request {
     let calib = rig.map(Path::to_path_buf).unwrap_or_default();
-    let source = if let Some(name) = &item.scenario {
-        let (width, height) = item
-            .size
+    let size = || {
+        item.size
             .as_deref()
             .and_then(manifest::parse_size)
-            .unwrap_or((640, 480));
+            .unwrap_or((640, 480))
+    };
+    let source = if let Some(case) = &item.case {
+        let (width, height) = size();
+        Source::ClosedLoop {
+            case: case.clone(),
+            width,
+            height,
+        }
+    } else if let Some(name) = &item.scenario {
+        let (width, height) = size();
         Source::Scenario {
             name: name.clone(),
             width,

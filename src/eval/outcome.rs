@@ -44,6 +44,9 @@ pub struct Outcome {
     /// Against the item's `truth`, when it has one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<Accuracy>,
+    /// A closed-loop case's outcome (contact, impact speed, gap, braking).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub closed_loop: Option<crate::replay::closed_loop::ClosedLoopReport>,
     /// The label met, or why not.
     pub verdict: Verdict,
 }
@@ -159,6 +162,7 @@ impl Outcome {
             speed_source: summary.speed_source,
             motion_source: summary.motion_source.clone(),
             stop_after: summary.reaction.and_then(|r| r.stop_command_after),
+            closed_loop: run.closed_loop.clone(),
             ..Self::default()
         };
         for r in run.trace.iter().filter(perception_alarm) {
@@ -249,6 +253,15 @@ impl Outcome {
                     });
                 }
             }
+            Expect::NoContact
+            | Expect::ImpactBelow
+            | Expect::NoActivation
+            | Expect::PeakDecelBelow => {
+                let Some(c) = &self.closed_loop else {
+                    return fail("not a closed loop".into());
+                };
+                return judge_closed_loop(item, c);
+            }
             Expect::StopBefore => {
                 let (from, kmh, stopping) = (
                     item.from.unwrap_or_default(),
@@ -269,4 +282,31 @@ impl Outcome {
         }
         Verdict::Pass
     }
+}
+
+/// A closed loop's outcome against its label.
+fn judge_closed_loop(item: &Item, c: &crate::replay::closed_loop::ClosedLoopReport) -> Verdict {
+    let impact = c.impact_kmh.unwrap_or_default();
+    let why = match item.expect {
+        Expect::NoContact if c.contact => Some(format!("contact at {impact:.1} km/h")),
+        Expect::ImpactBelow if c.contact && impact >= item.impact_kmh.unwrap_or_default() => {
+            Some(format!("contact at {impact:.1} km/h"))
+        }
+        Expect::NoActivation if c.activated() => Some(match (c.first_stop_s, c.first_slow_s) {
+            (Some(t), _) => format!(
+                "STOP at {t:.2} s, {:.1} m/s^2, {:.1} km/h lost",
+                c.peak_requested_decel, c.speed_lost_kmh
+            ),
+            (None, t) => format!(
+                "SLOW at {:.2} s, {:.1} km/h lost",
+                t.unwrap_or_default(),
+                c.speed_lost_kmh
+            ),
+        }),
+        Expect::PeakDecelBelow if c.peak_decel >= item.decel.unwrap_or_default() => {
+            Some(format!("the brakes gave {:.1} m/s^2", c.peak_decel))
+        }
+        _ => None,
+    };
+    why.map_or(Verdict::Pass, Verdict::Fail)
 }

@@ -136,6 +136,9 @@ impl ItemReport {
                 _ => "-".into(),
             }
         };
+        if self.label.expect.closed_loop() {
+            return self.closed_loop_detail();
+        }
         match self.label.expect {
             Expect::StopWithin => {
                 let mut g: Vec<u64> = self.runs.iter().filter_map(|r| r.stop_after).collect();
@@ -159,6 +162,64 @@ impl ItemReport {
                 range(&mut d, 2)
             }
         }
+    }
+}
+
+impl ItemReport {
+    /// A closed loop's runs: contacts, where the vehicle stopped, how hard it braked, when
+    /// it first did and the time to collision then, the speed it lost.
+    fn closed_loop_detail(&self) -> String {
+        let loops: Vec<_> = self
+            .runs
+            .iter()
+            .filter_map(|r| r.closed_loop.as_ref())
+            .collect();
+        let span = |mut v: Vec<f64>, digits: usize, unit: &str| {
+            v.sort_by(f64::total_cmp);
+            match (v.first(), v.last()) {
+                (Some(a), Some(b)) => format!("{a:.digits$}-{b:.digits$}{unit} ({})", v.len()),
+                _ => "-".into(),
+            }
+        };
+        let contacts = loops.iter().filter(|c| c.contact).count();
+        let mut parts = vec![format!("contact {contacts}/{}", loops.len())];
+        if contacts > 0 {
+            parts.push(format!(
+                "impact {}",
+                span(
+                    loops.iter().filter_map(|c| c.impact_kmh).collect(),
+                    1,
+                    " km/h"
+                )
+            ));
+        }
+        let stopped: Vec<f64> = loops.iter().filter_map(|c| c.stopped_gap_m).collect();
+        if !stopped.is_empty() {
+            parts.push(format!("stopped short by {}", span(stopped, 1, " m")));
+        }
+        let activated = loops.iter().filter(|c| c.activated()).count();
+        if activated > 0 {
+            parts.push(format!(
+                "peak decel req {} reached {}",
+                span(
+                    loops.iter().map(|c| c.peak_requested_decel).collect(),
+                    1,
+                    ""
+                ),
+                span(loops.iter().map(|c| c.peak_decel).collect(), 1, " m/s^2"),
+            ));
+            let ttc: Vec<f64> = loops.iter().filter_map(|c| c.first_stop_ttc_s).collect();
+            if !ttc.is_empty() {
+                parts.push(format!("first STOP at TTC {}", span(ttc, 2, " s")));
+            }
+            parts.push(format!(
+                "speed lost {}",
+                span(loops.iter().map(|c| c.speed_lost_kmh).collect(), 1, " km/h")
+            ));
+        } else {
+            parts.push("no SLOW, no STOP".into());
+        }
+        parts.join(", ")
     }
 }
 

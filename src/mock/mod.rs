@@ -81,6 +81,40 @@ pub fn mock_rig(width: u32, height: u32) -> Result<StereoRig, CameraError> {
     })
 }
 
+/// A rig like a vehicle's, for what the mock rig cannot resolve (its 0.30 m baseline judges
+/// about 18 m; a STOP at 50 km/h needs 33): KITTI's, the cameras level 1.65 m above the road,
+/// 0.54 m apart, 1242x375 pixels, a 721.5 px focal length, principal point (609.6, 172.9) and
+/// no distortion (KITTI's images are rectified). Fails only for sizes [`Camera::new`] rejects.
+pub fn vehicle_rig() -> Result<StereoRig, CameraError> {
+    let k = Intrinsics {
+        fx: VEHICLE_FOCAL_PX,
+        fy: VEHICLE_FOCAL_PX,
+        cx: 609.56,
+        cy: 172.85,
+    };
+    let half = 0.5 * VEHICLE_BASELINE;
+    let camera = |x: f64| {
+        Camera::new(
+            VEHICLE_SIZE.0,
+            VEHICLE_SIZE.1,
+            k,
+            Distortion::default(),
+            rotation_from_angles(0.0, 0.0, 0.0),
+            Point3::new(x, VEHICLE_CAMERA_HEIGHT, 0.0),
+        )
+    };
+    Ok(StereoRig {
+        left: camera(-half)?,
+        right: camera(half)?,
+    })
+}
+
+/// [`vehicle_rig`]'s image size, baseline, focal length and height.
+pub const VEHICLE_SIZE: (u32, u32) = (1242, 375);
+pub const VEHICLE_BASELINE: f64 = 0.54;
+pub const VEHICLE_FOCAL_PX: f64 = 721.54;
+pub const VEHICLE_CAMERA_HEIGHT: f64 = 1.65;
+
 /// Why the mock stereo feed failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MockError {
@@ -168,12 +202,23 @@ impl MockStereo {
     /// bytes each. Indices past the scenario's end keep its last scene (with fresh noise).
     pub fn frame(&mut self, index: u32) -> Result<(&[u8], &[u8]), MockError> {
         let scene = self.scenario.scene_at(index);
+        self.render_scene(&scene, index)
+    }
+
+    /// Renders `scene` as frame `index` (the frame number keys the sensor noise): what
+    /// [`MockStereo::frame`] does with the scenario's scene, for a scene made elsewhere (a
+    /// closed loop's, rendered from where its vehicle really is).
+    pub fn render_scene(
+        &mut self,
+        scene: &hw_mock::Scene,
+        index: u32,
+    ) -> Result<(&[u8], &[u8]), MockError> {
         self.depth_current = false;
         let depth = self.ground_truth.then_some(self.left_depth.as_mut_slice());
         self.left
-            .render(&scene, &self.sensor, index, 0, &mut self.left_rgb, depth)?;
+            .render(scene, &self.sensor, index, 0, &mut self.left_rgb, depth)?;
         self.right
-            .render(&scene, &self.sensor, index, 1, &mut self.right_rgb, None)?;
+            .render(scene, &self.sensor, index, 1, &mut self.right_rgb, None)?;
         self.depth_current = self.ground_truth;
         Ok((&self.left_rgb, &self.right_rgb))
     }

@@ -2,7 +2,10 @@
 
 use std::path::{Path, PathBuf};
 
+use std::time::Duration;
+
 use flyd_core::calib::Calibration;
+use flyd_core::decision::Decision;
 use flyd_core::frame::{PixelFormat, StereoFrame};
 use flyd_core::geometry::StereoRig;
 use flyd_core::kinematics::VehicleMotion;
@@ -44,6 +47,18 @@ pub trait FrameFeed {
     }
     /// Where [`FrameFeed::motion`] comes from, when the feed knows it.
     fn motion_source(&self) -> Option<String> {
+        None
+    }
+    /// The command decided at `time` on the frames' clock (every command, from the first):
+    /// a feed whose vehicle obeys ([`super::closed_loop`]) acts on it; the others film on.
+    fn obey(&mut self, _time: Duration, _decision: &Decision) {}
+    /// Whether the feed has nothing more to show (a closed loop's vehicle touched an actor or
+    /// stood still): the replay ends there.
+    fn finished(&self) -> bool {
+        false
+    }
+    /// A closed loop's outcome.
+    fn closed_loop(&self) -> Option<super::closed_loop::ClosedLoopReport> {
         None
     }
 }

@@ -4,7 +4,7 @@
 //! Frames come from one stereo pair (evaluated again and again, the paper's setting), a folder
 //! of pairs (`--sequence`, in name order at `--fps`) or a hw-mock scenario ([`feed`]). Each
 //! generation runs [`Perception::step`] (both engines, the road, the obstacle stage) and the
-//! [`Decider`] at the generation's time on the frames' clock, at the assumed speed; the
+//! [`Decider`](flyd_core::decision::Decider) at the generation's time on the frames' clock, at the assumed speed; the
 //! decider takes no input during the warm-up (it holds the safe command, as the daemon does).
 //!
 //! Outputs, in the output directory ([`output`]):
@@ -26,6 +26,7 @@
 //! This is a command at the edge: it reads files and the clock; perception does neither.
 
 pub mod can_motion;
+pub mod closed_loop;
 pub mod command;
 pub mod decided;
 pub mod feed;
@@ -47,7 +48,7 @@ use crate::config::EvolutionConfig;
 use crate::mock::MockError;
 use flyd_core::calib::CalibError;
 use flyd_core::decision::{
-    Command, CommandReason, Decider, DecisionConfig, DecisionConfigError, DecisionInput,
+    Command, CommandReason, DecisionConfig, DecisionConfigError, DecisionInput,
 };
 use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
 use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
@@ -55,7 +56,7 @@ use flyd_core::frame_step::{FrameStep, NewPair, StepConfig};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
 };
-use flyd_core::policy::{InputSource, PeriodInput};
+use flyd_core::policy::DecisionStep;
 use flyd_core::rectification::{RowCorrection, RowOffset, max_disparity, residual_row_offset};
 use flyd_core::sensor::{ImageCheck, ImageHealth, SensorConfig, SensorVerdict};
 use flyd_core::status::FaultBits;
@@ -253,6 +254,8 @@ pub struct Replay {
     pub row_correction: Option<RowCorrection>,
     /// The frame the most severe alarm (the first STOP, else the first SLOW) was decided on.
     pub decided: Option<decided::Decided>,
+    /// A closed loop's outcome ([`closed_loop`]).
+    pub closed_loop: Option<closed_loop::ClosedLoopReport>,
 }
 
 impl Replay {
@@ -283,7 +286,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             assumed_speed: settings.speed,
         },
     );
-    let mut decider = Decider::new(settings.decision)?;
+    let mut decision_step = DecisionStep::new(settings.decision)?;
     let (w, h) = (feed.rig().left.width(), feed.rig().left.height());
     let (rw, rh) = (feed.rig().right.width(), feed.rig().right.height());
     // Taken out: the recording ends with this run (its writer waits for every handle).
@@ -306,9 +309,11 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
     let mut checks = [ImageCheck::new(w, h), ImageCheck::new(rw, rh)];
     let mut health = [ImageHealth::default(); 2];
     // A command each generation: the period's input is that generation's snapshot.
-    let mut period = PeriodInput::default();
     let mut alarm: Option<decided::Decided> = None;
     for g in 0..settings.generations {
+        if feed.finished() {
+            break;
+        }
         let wanted = (g / per_frame).min(feed.frames().saturating_sub(1));
         let mut predicted = None;
         let new_frame = index != Some(wanted);
@@ -388,11 +393,12 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         // taken (the daemon's decider takes its fault path then: the safe command; the
         // replay's is not asked).
         if !outcome.warming_up {
-            period.observe(snapshot);
+            decision_step.observe(snapshot);
         }
-        let chosen = period.choose(|| None);
-        let decision = (chosen.from != InputSource::Untrusted)
-            .then(|| decider.update(chosen.with_faults(faults), time));
+        let decision = decision_step.decide_taken(time, faults).map(|d| d.decision);
+        if let Some(d) = &decision {
+            feed.obey(time, d);
+        }
         // The first SLOW and the first STOP on the evidence (a SLOW may continue the start-up's
         // safe command: its reason changes, not the command).
         if let Some(d) = decision
@@ -434,7 +440,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             road: report.road,
             tracked: report.tracked,
             corridor: report.corridor,
-            command: decision.map_or(decider.command(), |d| d.command),
+            command: decision.map_or(decision_step.command(), |d| d.command),
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),
             speed,
             search_far: step.perception().search_far(),
@@ -461,6 +467,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
         row_offset,
         row_correction,
         decided: alarm,
+        closed_loop: feed.closed_loop(),
     })
 }
 

@@ -223,5 +223,8 @@ pub fn write_outputs(dir: &Path, replay: &Replay) -> Result<(), ReplayError> {
     if let Some(decided) = &replay.decided {
         decided.write(dir)?;
     }
+    if let Some(run) = &replay.closed_loop {
+        run.write(dir)?;
+    }
     Ok(())
 }

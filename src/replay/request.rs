@@ -36,6 +36,13 @@ pub enum Source {
         width: u32,
         height: u32,
     },
+    /// A closed-loop case ([`super::closed_loop`]): hw-mock's vehicle obeys the replay's
+    /// commands, its cameras rendered at `width` x `height` (the mock rig's).
+    ClosedLoop {
+        case: Box<hw_mock::closed_loop::Case>,
+        width: u32,
+        height: u32,
+    },
 }
 
 /// A replay as asked for: the source and what the command line overrides of the
@@ -110,6 +117,29 @@ impl Request {
                     let generations = self.generations.unwrap_or(feed.frames() * per_frame);
                     let fps = feed.fps();
                     (Box::new(feed), generations, per_frame, fps)
+                }
+                Source::ClosedLoop {
+                    case,
+                    width,
+                    height,
+                } => {
+                    let feed = super::closed_loop::ClosedLoopFeed::new(
+                        (**case).clone(),
+                        *width,
+                        *height,
+                        params.seed,
+                    )?;
+                    let per_frame = self.generations_per_frame.unwrap_or(3).max(1);
+                    let generations = self.generations.unwrap_or(feed.frames() * per_frame);
+                    // No row correction for the mock's rigs (neither is rectified but
+                    // the vehicle rig, whose rows are exact).
+                    measure_rows = false;
+                    (
+                        Box::new(feed),
+                        generations,
+                        per_frame,
+                        super::closed_loop::FPS,
+                    )
                 }
                 Source::Sequence {
                     dir,

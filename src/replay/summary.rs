@@ -171,6 +171,9 @@ pub struct Summary {
     pub row_offset: RowOffsetReport,
     /// How that correction was chosen: the rig's, or measured on the first frame.
     pub row_correction: Option<flyd_core::rectification::RowCorrection>,
+    /// A closed loop's outcome: contact, gap, braking ([`super::closed_loop`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub closed_loop: Option<super::closed_loop::ClosedLoopReport>,
     /// The state at the last generation of each frame, when there is more than one frame.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub per_frame: Vec<FrameReport>,
@@ -254,6 +257,7 @@ impl Summary {
             predict_flies: replay.settings.predict && replay.moving_feed,
             motion_source: replay.motion_source.clone(),
             judgeable_distance: replay.perception.judgeable_distance(),
+            closed_loop: replay.closed_loop.clone(),
             last,
             warmup_generations: replay.settings.warmup_generations,
             alarms: Alarms::of(&replay.trace, replay.settings.warmup_generations),

@@ -13,11 +13,16 @@
 //!   in either decision mode ([`untrusted`]): the decider's fault path, the safe command;
 //!
 //! and the decider gets it with the faults active at the command ([`Chosen::with_faults`]).
+//! [`DecisionStep`] is that written once, the period's input and the [`Decider`] together:
 //! `flyd run` (the control thread), `flyd replay --mcap` (a recording's commands decided
-//! again) and `flyd replay` on a pair, a scenario or a sequence (a command each generation)
-//! all take their input here, so a replay tells the truth about the daemon.
+//! again) and `flyd replay` on a pair, a scenario, a sequence or a closed loop (a command each
+//! generation) each drive one, so a replay tells the truth about the daemon.
 
-use crate::decision::DecisionInput;
+use std::time::Duration;
+
+use crate::decision::{
+    Command, Decider, Decision, DecisionConfig, DecisionConfigError, DecisionInput,
+};
 use crate::sensor::SensorFaults;
 use crate::status::FaultBits;
 
@@ -107,6 +112,102 @@ impl PeriodInput {
                 input: untrusted(),
             },
         }
+    }
+}
+
+/// The decision's step: the trusted snapshots of a command period ([`PeriodInput`]) and the
+/// [`Decider`] they are decided by, with the faults active at the command.
+#[derive(Debug, Clone)]
+pub struct DecisionStep {
+    period: PeriodInput,
+    decider: Decider,
+}
+
+/// A command decided, and the input it was decided on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decided {
+    pub chosen: Chosen,
+    pub decision: Decision,
+}
+
+impl DecisionStep {
+    pub fn new(config: DecisionConfig) -> Result<Self, DecisionConfigError> {
+        Ok(Self {
+            period: PeriodInput::default(),
+            decider: Decider::new(config)?,
+        })
+    }
+
+    pub fn decider(&self) -> &Decider {
+        &self.decider
+    }
+
+    /// The command in force (before any decision: the safe command).
+    pub fn command(&self) -> Command {
+        self.decider.command()
+    }
+
+    /// A trusted snapshot's input (one of a population past its warm-up).
+    pub fn observe(&mut self, input: DecisionInput) {
+        self.period.observe(input);
+    }
+
+    /// Whether a snapshot taken since the last command asks for more than the command in
+    /// force: an escalation, sent at once instead of at the next period.
+    pub fn escalates(&self) -> bool {
+        self.period
+            .pending()
+            .is_some_and(|input| self.decider.escalates(&input))
+    }
+
+    /// The command at `now`: this period's input ([`PeriodInput::choose`], `latest` asked
+    /// only when nothing was taken) with the faults active now.
+    pub fn decide(
+        &mut self,
+        now: Duration,
+        faults: FaultBits,
+        latest: impl FnOnce() -> Option<DecisionInput>,
+    ) -> Decided {
+        let chosen = self.period.choose(latest);
+        self.decide_chosen(chosen, faults, now)
+    }
+
+    /// The command at `now` when a snapshot was taken since the last one, else none (a
+    /// replay's cadence: a command a generation on that generation's snapshot; the
+    /// warm-up's generations are not decided).
+    pub fn decide_taken(&mut self, now: Duration, faults: FaultBits) -> Option<Decided> {
+        self.period
+            .pending()
+            .is_some()
+            .then(|| self.decide(now, faults, || None))
+    }
+
+    /// The command at `now` on an input chosen by [`DecisionStep::replayed_choice`] (a
+    /// recording's choice), with the faults active now.
+    pub fn decide_chosen(&mut self, chosen: Chosen, faults: FaultBits, now: Duration) -> Decided {
+        Decided {
+            chosen,
+            decision: self.decider.update(chosen.with_faults(faults), now),
+        }
+    }
+
+    /// What a recording's choice `from` was: the worst snapshot taken since the last command
+    /// (forgotten), `latest` again, or untrusted.
+    pub fn replayed_choice(
+        &mut self,
+        from: InputSource,
+        latest: impl FnOnce() -> Option<DecisionInput>,
+    ) -> Chosen {
+        match from {
+            InputSource::Taken => self.period.choose(|| None),
+            InputSource::Latest => PeriodInput::fallback(latest()),
+            InputSource::Untrusted => PeriodInput::fallback(None),
+        }
+    }
+
+    /// The last command ([`Decider::shutdown`]).
+    pub fn shutdown(&mut self) -> Decision {
+        self.decider.shutdown()
     }
 }
 
@@ -210,6 +311,58 @@ mod tests {
         period.observe(faulty);
         let given = period.choose(|| None).with_faults(FaultBits::empty());
         assert_eq!(given.faults, FaultBits::empty());
+    }
+
+    #[test]
+    fn the_decision_step_is_the_period_input_and_the_decider_together() {
+        use crate::decision::{Command, DecisionConfig};
+        let config = DecisionConfig::default();
+        let mut step = DecisionStep::new(config).expect("valid");
+        let mut period = PeriodInput::default();
+        let mut decider = Decider::new(config).expect("valid");
+        let ms = Duration::from_millis;
+        // Nothing taken: no replay decision, and the daemon's is the fault path, as the
+        // decider's alone.
+        assert!(
+            step.clone()
+                .decide_taken(ms(0), FaultBits::empty())
+                .is_none()
+        );
+        assert!(!step.escalates());
+        let mut t = 0;
+        let inputs = [None, Some(40.0), Some(9.0), Some(9.5), None, None];
+        for obstacle in inputs.into_iter().chain([None; 200]) {
+            t += 20;
+            let input = DecisionInput::at_speed(obstacle, 8.0);
+            step.observe(input);
+            period.observe(input);
+            let escalates = decider.escalates(&period.pending().expect("taken"));
+            assert_eq!(step.escalates(), escalates);
+            let chosen = period.choose(|| None);
+            let want = decider.update(chosen.with_faults(FaultBits::empty()), ms(t));
+            let got = step.decide_taken(ms(t), FaultBits::empty()).expect("taken");
+            assert_eq!((got.chosen, got.decision), (chosen, want));
+        }
+        // STOP for the near obstacle, released to CLEAR after the holds.
+        assert_eq!(step.command(), Command::Clear);
+        // The latest is asked only when nothing was taken; faults go to the decider.
+        let d = step.decide(ms(t + 20), FaultBits::CAMERA_ERROR, || {
+            Some(DecisionInput::at_speed(None, 8.0))
+        });
+        assert_eq!(d.chosen.from, InputSource::Latest);
+        assert_eq!(d.decision.command, Command::Slow);
+        assert!(d.decision.fault);
+        // A recording's choice: taken (the pending snapshot forgotten), latest, untrusted.
+        step.observe(DecisionInput::at_speed(Some(30.0), 8.0));
+        let latest = step.replayed_choice(InputSource::Latest, || None);
+        assert_eq!(latest.from, InputSource::Untrusted, "no latest given");
+        let taken = step.replayed_choice(InputSource::Taken, || None);
+        assert_eq!(taken.input.obstacle, Some(30.0));
+        assert!(step.decide_taken(ms(t + 40), FaultBits::empty()).is_none());
+        assert_eq!(
+            step.shutdown().reason,
+            crate::decision::CommandReason::Shutdown
+        );
     }
 
     #[test]

@@ -14,17 +14,18 @@ use flyd_core::status::State;
 impl<B: CanBus> ControlThread<B> {
     pub(super) fn send_command(&mut self, s: &mut Loop, now: Duration) {
         // The newest trusted snapshot, asked only when none was taken since the last command.
+        // (What it tells the decider at this command's time: read before the step, which
+        // asks for it only when no snapshot was taken.)
         let newest = s.latest.filter(|l| !l.warming_up);
-        let chosen = s
-            .period
-            .choose(|| newest.map(|l| self.input_at(&l, self.clock.now())));
+        let newest_input = newest.map(|l| self.input_at(&l, self.clock.now()));
+        let flyd_core::policy::Decided { chosen, decision } =
+            self.decision.decide(now, s.faults, || newest_input);
         let latest = match chosen.from {
             InputSource::Latest => newest.map(|l| (l.generation, chosen.input)),
             _ => None,
         };
         let input = chosen.input;
         let warning = input.global_warning;
-        let decision = self.decider.update(chosen.with_faults(s.faults), now);
         self.record_decision(s, now, chosen.from.into(), latest, &input, &decision);
         if decision.changed {
             s.report.decision_changes += 1;

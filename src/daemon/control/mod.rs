@@ -6,7 +6,7 @@
 //! every 100 ms by default (the [`CanConfig`] periods), whether or not anything changed. A
 //! warning that escalates the command (CLEAR to SLOW, SLOW to STOP) sends `FLYD_Command` at
 //! once, between two periodic frames: a stop order does not wait for the period. The command is
-//! decided by the [`Decider`] (in metres by default: the confirmed obstacle against the stopping
+//! decided by the [`Decider`](flyd_core::decision::Decider) (in metres by default: the confirmed obstacle against the stopping
 //! distance, see [`flyd_core::decision`]) fed with
 //!
 //! - the **worst snapshot** since the previous command ([`DecisionInput::worst`]: the nearest
@@ -57,10 +57,10 @@ use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg};
 use flyd_core::can::motion_monitor::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
-use flyd_core::decision::{Decider, DecisionInput};
+use flyd_core::decision::DecisionInput;
 use flyd_core::faults::{FaultMonitor, Observation};
 use flyd_core::perception::RoadSource;
-use flyd_core::policy::PeriodInput;
+use flyd_core::policy::DecisionStep;
 use flyd_core::sensor::SensorFaults;
 use flyd_core::status::{FaultBits, State};
 
@@ -167,7 +167,8 @@ pub struct ControlReport {
 
 pub struct ControlThread<B: CanBus> {
     pub tx: Transmitter<B>,
-    pub decider: Decider,
+    /// The decision's step (the period's input and the decider).
+    pub decision: DecisionStep,
     pub monitor: FaultMonitor,
     pub notifier: ServiceNotifier,
     pub inputs: Inputs,
@@ -200,9 +201,6 @@ pub struct ControlThread<B: CanBus> {
 struct Loop {
     latest: Option<Snapshot>,
     latest_at: Option<Duration>,
-    /// Highest global warning since the last command (NaN-propagating: a NaN is a fault).
-    /// The worst snapshot since the last command (see the module docs).
-    period: PeriodInput,
     faults: FaultBits,
     /// The sensor faults behind CAMERA_ERROR, as the status frame reports them.
     sensor: SensorFaults,
@@ -239,7 +237,6 @@ impl<B: CanBus> ControlThread<B> {
         let mut s = Loop {
             latest: None,
             latest_at: None,
-            period: PeriodInput::default(),
             faults: FaultBits::empty(),
             sensor: SensorFaults::empty(),
             motion_fault: self.motion.as_ref().map(|_| MotionFault::Missing),
@@ -248,7 +245,7 @@ impl<B: CanBus> ControlThread<B> {
             beyond_range: false,
             last_sent_at: None,
             state: State::Init,
-            command: self.decider.command(),
+            command: self.decision.command(),
             can_failing: false,
             can_episode_errors: 0,
             gen_times: SampleWindow::new(1024),
@@ -270,10 +267,7 @@ impl<B: CanBus> ControlThread<B> {
             self.drain(&mut s);
             self.update_rates(&mut s, now);
             self.supervise(&mut s, now);
-            let escalation = s
-                .period
-                .pending()
-                .is_some_and(|input| self.decider.escalates(&input));
+            let escalation = self.decision.escalates();
             if command_slot.due(now) || escalation {
                 self.send_command(&mut s, now);
             }
@@ -356,7 +350,7 @@ impl<B: CanBus> ControlThread<B> {
         if snapshot.warming_up {
             return;
         }
-        s.period.observe(input);
+        self.decision.observe(input);
         if !s.report.reached_running {
             s.report.reached_running = true;
             self.monitor.set_running();
@@ -541,7 +535,7 @@ impl<B: CanBus> ControlThread<B> {
 
     fn shut_down(&mut self, s: &mut Loop) {
         let now = self.clock.now();
-        let decision = self.decider.shutdown();
+        let decision = self.decision.shutdown();
         tracing::info!(command = %decision.command, "shutting down: last command and SHUTDOWN status");
         self.notifier.stopping("SHUTDOWN");
         let warning = s.latest.map_or(f64::NAN, |l| l.global_warning);

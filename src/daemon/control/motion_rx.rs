@@ -100,7 +100,7 @@ impl<B: CanBus> ControlThread<B> {
             s.motion_fault = fault;
         }
         let speed = self.speed(now);
-        let reach = self.decider.config().reach(Command::Slow, speed);
+        let reach = self.decision.decider().config().reach(Command::Slow, speed);
         let beyond = reach > self.range;
         if beyond != s.beyond_range {
             if beyond {

@@ -15,8 +15,8 @@ use flyd_core::can::Transmitter;
 use flyd_core::can::messages::CommandMsg;
 use flyd_core::can::motion_monitor::MotionMonitor;
 use flyd_core::clock::ManualClock;
-use flyd_core::decision::{Decider, DecisionInput};
-use flyd_core::policy::{PeriodInput, untrusted};
+use flyd_core::decision::DecisionInput;
+use flyd_core::policy::{DecisionStep, InputSource, untrusted};
 use flyd_core::status::FaultBits;
 
 /// Same bits, for the comparison of a replayed value with a recorded one; JSON keeps no NaN
@@ -42,7 +42,7 @@ pub(super) fn replay_decisions(
     recorder: Option<&crate::record::Recorder>,
     summary: &mut RecordedSummary,
 ) -> Result<(), ReplayError> {
-    let mut decider = Decider::new(config.decision)?;
+    let mut step = DecisionStep::new(config.decision)?;
     let bus = MemoryBus::new(ManualClock::new(Duration::ZERO));
     let mut tx = Transmitter::new(bus.clone(), config.can.messages)?;
     let command_id = config.can.messages.command.id;
@@ -51,7 +51,6 @@ pub(super) fn replay_decisions(
     summary.commands_recorded = sent.len();
     let mut monitor = config.motion().map(MotionMonitor::new);
     let assumed = config.vehicle.assumed_speed;
-    let mut period = PeriodInput::default();
     let outcome = |g: u64| {
         outcomes
             .get(usize::try_from(g).unwrap_or(usize::MAX))
@@ -130,13 +129,13 @@ pub(super) fn replay_decisions(
                     };
                     r.snapshot(p.seq, t, observed, &input);
                 }
-                period.observe(input);
+                step.observe(input);
             }
             ControlEvent::Decision(d) => {
                 let t = Duration::from_nanos(d.t_ns);
                 let (decision, warning, used) = match d.from {
                     InputFrom::Shutdown => (
-                        decider.shutdown(),
+                        step.shutdown(),
                         d.global_warning,
                         DecisionInput {
                             global_warning: d.global_warning,
@@ -159,13 +158,14 @@ pub(super) fn replay_decisions(
                         };
                         // The daemon's choice, as it recorded it: a recording that dropped
                         // snapshots must not make the replay choose otherwise.
-                        let chosen = match from {
-                            InputFrom::Taken => period.choose(|| None),
-                            InputFrom::Latest => PeriodInput::fallback(latest()),
-                            _ => PeriodInput::fallback(None),
+                        let source = match from {
+                            InputFrom::Taken => InputSource::Taken,
+                            InputFrom::Latest => InputSource::Latest,
+                            _ => InputSource::Untrusted,
                         };
+                        let chosen = step.replayed_choice(source, latest);
                         let faults = FaultBits::from_bits(d.faults as u8);
-                        let decision = decider.update(chosen.with_faults(faults), t);
+                        let decision = step.decide_chosen(chosen, faults, t).decision;
                         (decision, chosen.input.global_warning, chosen.input)
                     }
                 };

@@ -1,0 +1,135 @@
+//! The closed loop through the real binary: hw-mock's vehicle obeys `flyd replay --case`'s
+//! commands (it stops short of a stopped car, the run written as CSV and SVG), and `flyd eval`
+//! judges cases by outcome (a steel plate on the lane is no reason to brake; brakes too weak
+//! to stop end in contact, and the label says so).
+
+mod flyd_cli;
+
+use flyd_cli::flyd_json;
+use std::path::Path;
+use std::process::Command;
+
+#[test]
+fn a_vehicle_that_obeys_stops_short_of_a_stopped_car() {
+    let out = tempfile::tempdir().expect("tempdir");
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let case = repo.join("eval/closed-loop/stationary.toml");
+    let summary = flyd_json([
+        "replay".as_ref(),
+        "--case".as_ref(),
+        case.as_os_str(),
+        "--case-name".as_ref(),
+        "car-stationary-100-20kmh".as_ref(),
+        "--seed".as_ref(),
+        "1".as_ref(),
+        "--out".as_ref(),
+        out.path().as_os_str(),
+    ]);
+    let run = &summary["closed_loop"];
+    eprintln!("{run:#}");
+    assert_eq!(run["contact"], false, "{run}");
+    let gap = run["stopped_gap_m"].as_f64().expect("stopped");
+    assert!((0.0..6.0).contains(&gap), "stopped {gap} m short");
+    assert!(run["first_stop_s"].as_f64().is_some(), "{run}");
+    let peak = run["peak_decel"].as_f64().expect("braked");
+    assert!(peak > 1.0 && peak <= 9.5, "{peak}");
+    assert_eq!(run["end_kmh"], 0.0);
+    assert_eq!(summary["speed_source"], "feed");
+    // The run over time: a row a command, ending at a standstill ...
+    let csv = std::fs::read_to_string(out.path().join("closed_loop.csv")).expect("csv");
+    let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(
+        rows[0],
+        [
+            "t",
+            "speed_kmh",
+            "gap_m",
+            "requested_decel",
+            "decel",
+            "command"
+        ]
+    );
+    assert!(rows.len() > 30 && rows.iter().all(|r| r.len() == 6));
+    let last = rows.last().expect("rows");
+    assert_eq!(last[1].parse::<f64>().ok(), Some(0.0), "{last:?}");
+    assert!(rows.iter().any(|r| r[5] == "STOP"));
+    // ... and as a picture that an XML reader takes.
+    let svg = out.path().join("closed_loop.svg");
+    let parsed = Command::new("python3")
+        .args(["-c", "import sys, xml.etree.ElementTree as E; r = E.parse(sys.argv[1]).getroot(); print(r.tag)"])
+        .arg(&svg)
+        .output()
+        .expect("python3");
+    assert!(
+        parsed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&parsed.stderr)
+    );
+    assert!(
+        String::from_utf8_lossy(&parsed.stdout)
+            .trim()
+            .ends_with("svg")
+    );
+}
+
+#[test]
+fn eval_judges_cases_by_outcome() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cases = r#"
+[[case]]
+name = "plate"
+road = "straight"
+speed_kmh = 30
+expect = "no-activation"
+[[case.actor]]
+kind = "plate"
+at = 25.0
+
+[[case]]
+name = "weak-brakes"
+description = "Brakes that give 0.5 m/s^2: no command can stop in time."
+road = "straight"
+speed_kmh = 30
+expect = "no-contact"
+[case.vehicle]
+max_decel = 0.5
+[[case.actor]]
+kind = "car"
+at = 25.0
+"#;
+    std::fs::write(dir.path().join("cases.toml"), cases).expect("write");
+    std::fs::write(dir.path().join("m.toml"), "cases = [\"cases.toml\"]\n").expect("write");
+    let json = dir.path().join("report.json");
+    let output = Command::new(env!("CARGO_BIN_EXE_flyd"))
+        .arg("eval")
+        .arg(dir.path().join("m.toml"))
+        .args(["--seeds", "1", "--jobs", "2", "--json"])
+        .arg(&json)
+        .output()
+        .expect("runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    eprintln!("{text}");
+    assert_eq!(output.status.code(), Some(1), "a label is not met");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("parses");
+    let item = |name: &str| {
+        report["items"]
+            .as_array()
+            .and_then(|items| items.iter().find(|i| i["name"] == name))
+            .cloned()
+            .unwrap_or_else(|| panic!("no item {name}"))
+    };
+    let plate = item("plate");
+    assert_eq!(plate["ok"], 1, "{plate}");
+    assert_eq!(
+        plate["runs"][0]["closed_loop"]["first_slow_s"],
+        serde_json::Value::Null
+    );
+    let weak = item("weak-brakes");
+    assert_eq!(weak["ok"], 0);
+    let run = &weak["runs"][0]["closed_loop"];
+    assert_eq!(run["contact"], true, "{run}");
+    let impact = run["impact_kmh"].as_f64().expect("impact");
+    assert!(impact > 5.0 && impact <= 30.0 + 1e-9, "{impact}");
+    assert!(text.contains("weak-brakes: seed 1: contact at"), "{text}");
+}
