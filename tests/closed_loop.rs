@@ -105,6 +105,8 @@ at = 25.0
         .arg(dir.path().join("m.toml"))
         .args(["--seeds", "1", "--jobs", "2", "--json"])
         .arg(&json)
+        .arg("--out")
+        .arg(dir.path().join("out"))
         .output()
         .expect("runs");
     let text = String::from_utf8_lossy(&output.stdout);
@@ -132,4 +134,11 @@ at = 25.0
     let impact = run["impact_kmh"].as_f64().expect("impact");
     assert!(impact > 5.0 && impact <= 30.0 + 1e-9, "{impact}");
     assert!(text.contains("weak-brakes: seed 1: contact at"), "{text}");
+    // The index of why runs braked shows each closed loop's run over time.
+    let index = std::fs::read_to_string(dir.path().join("out/index.html")).expect("index");
+    assert!(
+        index.contains("<img src=\"weak-brakes/seed1/closed_loop.svg\""),
+        "{index}"
+    );
+    assert!(dir.path().join("out/plate/seed1/closed_loop.svg").is_file());
 }

@@ -130,6 +130,14 @@ pub struct ActorSpec {
     /// seconds (Euro NCAP starts its runs 4 s from the target), at least 20 m.
     #[serde(default)]
     pub ttc_s: Option<f64>,
+    /// Instead of `at`: the time gap from the vehicle's bumper to the actor at the vehicle's
+    /// set speed, seconds (a car followed 1.5 s ahead).
+    #[serde(default)]
+    pub gap_s: Option<f64>,
+    /// It drives the vehicle's way at the vehicle's set speed (a car followed), plus
+    /// `speed_kmh`.
+    #[serde(default)]
+    pub same_speed: bool,
     /// Metres right of the centre line, of the actor's centre (default 0).
     #[serde(default)]
     pub offset: Option<f64>,
@@ -144,6 +152,16 @@ pub struct ActorSpec {
     /// Its speed across the road, km/h (positive: to the right).
     #[serde(default)]
     pub cross_kmh: f64,
+    /// Where its motion across the road ends, metres right of the centre line (a pedestrian
+    /// who stops at the kerb, a car that cut in and drives on in the lane; default: never).
+    #[serde(default)]
+    pub cross_until: Option<f64>,
+    /// It brakes to a stop at this deceleration, m/s^2 (a car ahead braking) ...
+    #[serde(default)]
+    pub brake_decel: Option<f64>,
+    /// ... from this many seconds after the start (default 0).
+    #[serde(default)]
+    pub brake_at_s: f64,
 }
 
 /// One speed or several.
@@ -226,12 +244,41 @@ pub struct Actor {
     /// m/s along and across.
     pub speed: f64,
     pub cross: f64,
+    /// Where the motion across ends (offset, metres), if it does.
+    pub cross_until: Option<f64>,
+    /// Braking to a stop: (from, seconds; deceleration, m/s^2).
+    pub brake: Option<(f64, f64)>,
 }
 
 impl Actor {
     /// (near end along, centre offset) at `time` seconds.
     pub fn place(&self, time: f64) -> (f64, f64) {
-        (self.at + self.speed * time, self.offset + self.cross * time)
+        let along = match self.brake {
+            Some((from, decel)) if time > from && decel > 0.0 && self.speed > 0.0 => {
+                let braking = (time - from).min(self.speed / decel);
+                self.at + self.speed * from + self.speed * braking - 0.5 * decel * braking * braking
+            }
+            _ => self.at + self.speed * time,
+        };
+        let mut offset = self.offset + self.cross * time;
+        if let Some(end) = self.cross_until {
+            offset = if self.cross >= 0.0 {
+                offset.min(end.max(self.offset))
+            } else {
+                offset.max(end.min(self.offset))
+            };
+        }
+        (along, offset)
+    }
+
+    /// Its speed along the road at `time`, m/s.
+    pub fn speed_at(&self, time: f64) -> f64 {
+        match self.brake {
+            Some((from, decel)) if time > from && self.speed > 0.0 => {
+                (self.speed - decel * (time - from)).max(0.0)
+            }
+            _ => self.speed,
+        }
     }
 }
 
@@ -375,15 +422,45 @@ impl CaseSpec {
                 }
                 (None, None) => 0.0,
             };
-            let at = match (a.at, a.ttc_s) {
-                (Some(at), None) => Place::At(at),
-                (None, Some(ttc)) if ttc.is_finite() && ttc > 0.0 => Place::Ttc(ttc),
-                (None, Some(ttc)) => {
-                    return Err(err(format!("actor {}: ttc_s = {ttc}: must be > 0", i + 1)));
+            let at = match (a.at, a.ttc_s, a.gap_s) {
+                (Some(at), None, None) => Place::At(at),
+                (None, Some(ttc), None) if ttc.is_finite() && ttc > 0.0 => Place::Ttc(ttc),
+                (None, None, Some(gap)) if gap.is_finite() && gap > 0.0 => Place::Gap(gap),
+                (None, Some(t), None) | (None, None, Some(t)) => {
+                    return Err(err(format!(
+                        "actor {}: ttc_s or gap_s = {t}: must be > 0",
+                        i + 1
+                    )));
                 }
-                _ => return Err(err(format!("actor {}: needs `at` or `ttc_s`", i + 1))),
+                _ => {
+                    return Err(err(format!(
+                        "actor {}: needs one of `at`, `ttc_s`, `gap_s`",
+                        i + 1
+                    )));
+                }
             };
-            let values = [offset, a.speed_kmh, a.cross_kmh];
+            let values = [
+                offset,
+                a.speed_kmh,
+                a.cross_kmh,
+                a.cross_until.unwrap_or(0.0),
+                a.brake_at_s,
+            ];
+            if let Some(d) = a.brake_decel
+                && !(d.is_finite() && (0.1..=12.0).contains(&d))
+            {
+                return Err(err(format!(
+                    "actor {}: brake_decel = {d}: must be within 0.1..=12 m/s^2",
+                    i + 1
+                )));
+            }
+            if a.brake_at_s < 0.0 || a.speed_kmh < 0.0 && a.brake_decel.is_some() {
+                return Err(err(format!(
+                    "actor {}: brake_at_s must be >= 0, and a braking actor drives the \
+                     vehicle's way",
+                    i + 1
+                )));
+            }
             let bad_at = matches!(at, Place::At(v) if !(v.is_finite() && v >= 0.0));
             if values.iter().any(|v| !v.is_finite()) || bad_at || offset.abs() > 30.0 {
                 return Err(err(format!(
@@ -391,13 +468,15 @@ impl CaseSpec {
                     i + 1
                 )));
             }
-            places.push(at);
+            places.push((at, a.same_speed));
             actors.push(Actor {
                 kind: a.kind,
                 at: 0.0,
                 offset,
                 speed: a.speed_kmh / 3.6,
                 cross: a.cross_kmh / 3.6,
+                cross_until: a.cross_until,
+                brake: a.brake_decel.map(|d| (a.brake_at_s, d)),
             });
         }
         let speeds = match &self.speed_kmh {
@@ -414,11 +493,15 @@ impl CaseSpec {
             }
             let speed = kmh / 3.6;
             let mut actors = actors.clone();
-            for (a, place) in actors.iter_mut().zip(&places) {
-                a.at = match *place {
+            for (a, &(place, same)) in actors.iter_mut().zip(&places) {
+                a.at = match place {
                     Place::At(at) => at,
                     Place::Ttc(ttc) => (ttc * speed + body.front).max(20.0),
+                    Place::Gap(gap) => gap * speed + body.front,
                 };
+                if same {
+                    a.speed += speed;
+                }
             }
             // Time to pass the farthest actor (as it stands at the start) at the set speed, and
             // time to stop from it at 1 m/s^2: a run ends before, at contact, at a standstill
@@ -461,6 +544,7 @@ impl CaseSpec {
 enum Place {
     At(f64),
     Ttc(f64),
+    Gap(f64),
 }
 
 fn fmt_kmh(kmh: f64) -> String {
@@ -560,7 +644,7 @@ impl Case {
                     && (offset + 0.5 * w) > -self.body.half_width;
                 (across && near + l > rear).then_some(Gap {
                     distance: near - front,
-                    actor_speed: a.speed,
+                    actor_speed: a.speed_at(time),
                     kind: a.kind,
                 })
             })

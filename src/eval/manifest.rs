@@ -443,6 +443,7 @@ mod tests {
             "eval/fixtures.toml",
             "eval/hw-mock.toml",
             "eval/closed-loop.toml",
+            "eval/traffic.toml",
         ] {
             let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(m);
             let manifest = Manifest::load(&path).unwrap_or_else(|e| panic!("{m}: {e}"));

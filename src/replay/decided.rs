@@ -272,7 +272,8 @@ pub fn write_index(dir: &Path) -> std::io::Result<usize> {
          a SLOW or STOP: the frame its most severe alarm was decided on. Yellow: the \
          corridor's edges on the road, cyan: the predicted path, magenta: the arc of the \
          moment where it differs (a fly must be near both), green: the corridor's unique \
-         flies, red: the obstacle's flies and its near face.</p>\n<table>\n",
+         flies, red: the obstacle's flies and its near face. A closed loop's run over time \
+         beside it: speed, gap, deceleration requested and reached.</p>\n<table>\n",
     );
     for (rel, v) in &rows {
         let command = cell(v, "command", 0);
@@ -303,6 +304,14 @@ pub fn write_index(dir: &Path) -> std::io::Result<usize> {
             cell(v, "corridor_half_width_m", 2),
             cell(v, "search_far_m", 1),
         ));
+        // A closed loop's run over time beside it: how the vehicle braked.
+        if dir.join(rel).join("closed_loop.svg").is_file() {
+            let row = html.trim_end().trim_end_matches("</tr>").to_string();
+            html = format!(
+                "{row}<td><a href=\"{rel}/closed_loop.svg\"><img src=\"{rel}/closed_loop.svg\" \
+                 alt=\"{rel}: the run over time\"></a></td></tr>\n"
+            );
+        }
     }
     if rows.is_empty() {
         html.push_str("<tr><td>No run braked.</td></tr>\n");

@@ -37,6 +37,11 @@ fn a_case_is_one_a_speed_and_overlap_places_the_actor_as_euro_ncap_does() {
     assert_eq!(slow.actors[0].at, 20.0);
     let want = 4.0 * fast.speed + fast.body.front;
     assert!((fast.actors[0].at - want).abs() < 1e-9);
+    // Followed 1.5 s ahead at the vehicle's speed.
+    let followed = parse(&CAR.replace("at = 30.0", "gap_s = 1.5\nsame_speed = true")).expect("valid");
+    let f = &followed[1];
+    assert!((f.actors[0].at - (1.5 * f.speed + f.body.front)).abs() < 1e-9);
+    assert_eq!(f.actors[0].speed, f.speed);
     // Time to pass it, and to stop at 1 m/s^2 from the set speed.
     let c = &cases[0];
     let want = (30.0 + 4.2 + c.body.length) / c.speed + c.speed + 2.0;
@@ -78,6 +83,23 @@ fn actors_move_at_their_speed_along_and_across() {
     let cases = parse(&text).expect("valid");
     let a = cases[0].actors[0];
     assert_eq!(a.place(2.0), (30.0 + 20.0, -3.0 + 2.0));
+    // One who stops short of the lane, and a car that brakes to a stop from 1 s.
+    let kerb = parse(&text.replace("cross_kmh = 3.6", "cross_kmh = 3.6\ncross_until = -2.5"))
+        .expect("valid");
+    assert_eq!(kerb[0].actors[0].place(2.0).1, -2.5);
+    assert_eq!(kerb[0].actors[0].place(0.2).1, -3.0 + 0.2);
+    let braking = parse(&text.replace(
+        "cross_kmh = 3.6",
+        "brake_decel = 5.0\nbrake_at_s = 1.0",
+    ))
+    .expect("valid");
+    let b = braking[0].actors[0];
+    assert_eq!(b.speed_at(0.5), 10.0);
+    assert_eq!(b.speed_at(1.4), 8.0);
+    assert_eq!(b.speed_at(9.0), 0.0);
+    // 10 m in the first second, then 10^2 / (2 * 5) = 10 m to a stop.
+    assert!((b.place(9.0).0 - (30.0 + 20.0)).abs() < 1e-9, "{:?}", b.place(9.0));
+    assert!((b.place(1.4).0 - (30.0 + 10.0 + 4.0 - 0.4)).abs() < 1e-9);
 }
 
 #[test]
@@ -151,7 +173,8 @@ fn bad_cases_say_what_is_wrong() {
         ("overlap = 50", "overlap = 50\noffset = 1", "not both"),
         ("at = 30.0", "at = -3.0", "at must be >= 0"),
         ("at = 30.0", "ttc_s = 0.0", "must be > 0"),
-        ("at = 30.0", "", "needs `at` or `ttc_s`"),
+        ("at = 30.0", "", "needs one of `at`, `ttc_s`, `gap_s`"),
+        ("at = 30.0", "at = 3.0\ngap_s = 1.0", "needs one of"),
     ] {
         let text = CAR.replace(from, to);
         let e = parse(&text).expect_err(to);
