@@ -430,3 +430,6 @@ fn pose_bits(scene: &Scene) -> [u64; 5] {
             .map_or(0, |r| std::ptr::from_ref(r).addr() as u64),
     ]
 }
+
+#[cfg(test)]
+mod tests;
