@@ -15,7 +15,7 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
-use crate::world::{Ray, Sample, Scene, background, trace_scene};
+use crate::world::{Ray, Sample, Scene, background_valid, trace_scene};
 
 mod sensor_model;
 mod tile;
@@ -294,7 +294,7 @@ impl CameraRenderer {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
-                        Some(ray) => background(&ray, &candidates, scene),
+                        Some(ray) => background_valid(&ray, &candidates, scene),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);

@@ -19,11 +19,19 @@ pub fn locate(k: f64, x: f64, z: f64) -> (f64, f64) {
     if k == 0.0 {
         return (z, x);
     }
+    let along = (k.abs() * z).atan2(1.0 + k * x) / k.abs();
+    (along, locate_offset(k, x, z))
+}
+
+/// The offset of [`locate`] alone (bit for bit), without its arc tangent.
+#[inline]
+pub(super) fn locate_offset(k: f64, x: f64, z: f64) -> f64 {
+    if k == 0.0 {
+        return x;
+    }
     // The distance to the circle's centre (-1/k, 0) minus its radius, rationalised so that
     // it holds for either sign of k and for a centre line far away.
-    let offset = (2.0 * x + k * (x * x + z * z)) / (1.0 + (1.0 + k * x).hypot(k * z));
-    let along = (k.abs() * z).atan2(1.0 + k * x) / k.abs();
-    (along, offset)
+    (2.0 * x + k * (x * x + z * z)) / (1.0 + (1.0 + k * x).hypot(k * z))
 }
 
 /// The road-frame `(x, z)` of road coordinates `(along, offset)` (the inverse of [`locate`]).
@@ -81,14 +89,23 @@ pub(super) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
 /// The nearest hit in front of the ray on the bent box `min..max` (road coordinates: offset,
 /// height, along) of a road of curvature `k`: the faces and texture coordinates a box has
 /// ([`Obstacle`]), laid along the bend. Assumes [`is_valid`].
-pub(super) fn intersect(ray: &Ray, k: f64, min: [f64; 3], max: [f64; 3]) -> Option<Hit> {
-    intersect_part(ray, k, min, max, [min[2], max[2]], [true, true])
+pub(super) fn intersect(
+    ray: &Ray,
+    k: f64,
+    min: [f64; 3],
+    max: [f64; 3],
+    before: f64,
+) -> Option<Hit> {
+    intersect_part(ray, k, min, max, [min[2], max[2]], [true, true], before)
 }
 
 /// [`intersect`] restricted to the part of the box between `part[0]` and `part[1]` along (within
 /// `min[2]..max[2]`): what one piece of a longer box draws ([`super::profile`]). Its end faces
 /// (at `min[2]`, `max[2]`) are there only where `ends` says so; texture coordinates are the whole
 /// box's.
+///
+/// Only hits nearer than `before` are looked for (a ray that meets something else first need
+/// not locate the candidates beyond it): the nearest hit if it is nearer, else none.
 pub(super) fn intersect_part(
     ray: &Ray,
     k: f64,
@@ -96,6 +113,7 @@ pub(super) fn intersect_part(
     max: [f64; 3],
     part: [f64; 2],
     ends: [bool; 2],
+    before: f64,
 ) -> Option<Hit> {
     let (o, d) = (ray.origin, ray.dir);
     // Candidate surfaces: 0/1 the mantles at offsets min/max, 2/3 the planes at heights
@@ -103,7 +121,7 @@ pub(super) fn intersect_part(
     let mut candidates = [(f64::INFINITY, 0usize); 8];
     let mut n = 0;
     let mut push = |t: f64, face: usize| {
-        if t.is_finite() && t > T_MIN {
+        if t.is_finite() && t > T_MIN && t < before {
             candidates[n] = (t, face);
             n += 1;
         }
@@ -150,14 +168,19 @@ pub(super) fn intersect_part(
         }
     }
     let candidates = &mut candidates[..n];
-    candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // Stable: ties go to the surface pushed first, whichever candidates `before` left out.
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mid = |a: usize| 0.5 * (min[a] + max[a]);
     candidates.iter().find_map(|&(t, face)| {
         let p = ray.at(t);
-        let (along, offset) = locate(k, p[0], p[2]);
         let within = |v: f64, a: usize| v >= min[a] - ON_SURFACE && v <= max[a] + ON_SURFACE;
+        // Cheapest test first: the height needs no locating, the offset no arc tangent.
+        if !within(p[1], 1) || !within(locate_offset(k, p[0], p[2]), 0) {
+            return None;
+        }
+        let (along, offset) = locate(k, p[0], p[2]);
         let in_part = along >= part[0] - ON_SURFACE && along <= part[1] + ON_SURFACE;
-        if !(within(offset, 0) && within(p[1], 1) && in_part) {
+        if !in_part {
             return None;
         }
         let (sin, cos) = heading(k, along).sin_cos();

@@ -333,28 +333,36 @@ impl Obstacle {
     /// per obstacle, not once per pixel).
     #[inline]
     pub(crate) fn intersect_valid(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_before(ray, f64::INFINITY)
+    }
+
+    /// [`Obstacle::intersect_valid`] if its hit is nearer than `before`, else none: what a ray
+    /// that already meets something at `before` needs, and cheaper (a bent or laid box does not
+    /// locate the candidates beyond it).
+    #[inline]
+    pub(crate) fn intersect_before(&self, ray: &Ray, before: f64) -> Option<Hit> {
         match *self {
-            Obstacle::Box { min, max, .. } => intersect_box(ray, min, max),
+            Obstacle::Box { min, max, .. } => intersect_box(ray, min, max).filter(|h| h.t < before),
             Obstacle::Cylinder {
                 x,
                 z,
                 radius,
                 height,
                 ..
-            } => intersect_cylinder(ray, x, z, radius, height),
+            } => intersect_cylinder(ray, x, z, radius, height).filter(|h| h.t < before),
             Obstacle::Bent {
                 curvature,
                 min,
                 max,
                 ..
-            } => bend::intersect(ray, curvature, min, max),
+            } => bend::intersect(ray, curvature, min, max, before),
             Obstacle::Laid {
                 road,
                 min,
                 max,
                 part,
                 ..
-            } => profile::intersect(ray, road, min, max, part),
+            } => profile::intersect(ray, road, min, max, part, before),
         }
     }
 

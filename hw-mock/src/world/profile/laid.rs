@@ -67,12 +67,14 @@ pub(in crate::world) fn bounds(
 
 /// The nearest hit in front of the ray on a valid laid box's part: in each cell it is drawn in,
 /// the bent box of the cell's arc ([`bend::intersect_part`]), its end faces where the box ends.
+/// Only hits nearer than `before` are looked for.
 pub(in crate::world) fn intersect(
     ray: &Ray,
     road: &Road,
     min: [f64; 3],
     max: [f64; 3],
     part: [f64; 2],
+    before: f64,
 ) -> Option<Hit> {
     let (lo, hi) = (min[2].max(part[0]), max[2].min(part[1]));
     let (first, last) = road.span(lo, hi);
@@ -80,7 +82,7 @@ pub(in crate::world) fn intersect(
     for (c, local) in road.cells(lo, hi) {
         let n = &road.nodes[c];
         let (ox, oz) = n.local(ray.origin[0], ray.origin[2]);
-        let (sin, cos) = n.heading.sin_cos();
+        let (sin, cos) = (n.sin, n.cos);
         let d = ray.dir;
         let local_ray = Ray {
             origin: [ox, ray.origin[1], oz],
@@ -88,12 +90,12 @@ pub(in crate::world) fn intersect(
         };
         let (cmin, cmax) = Road::in_cell(c, min, max);
         let ends = [c == first && lo == min[2], c == last && hi == max[2]];
-        let Some(mut hit) = bend::intersect_part(&local_ray, n.k, cmin, cmax, local, ends) else {
+        // A later cell's hit counts only if strictly nearer than the best so far.
+        let before = best.as_ref().map_or(before, |b| b.t.min(before));
+        let Some(mut hit) = bend::intersect_part(&local_ray, n.k, cmin, cmax, local, ends, before)
+        else {
             continue;
         };
-        if best.as_ref().is_some_and(|b| b.t <= hit.t) {
-            continue;
-        }
         let (px, pz) = n.place(hit.point[0], hit.point[2]);
         hit.point = [px, hit.point[1], pz];
         let nv = hit.normal;
