@@ -133,3 +133,77 @@ fn print_many_hashes() {
         }
     }
 }
+
+/// One renderer per camera through a sequence of scenes, each frame compared with the
+/// reference bit for bit (image and depth).
+fn fast_matches_reference(scenes: &[(Scene, u32)], what: &str) {
+    let sensor = SensorModel::default();
+    let cams = [Pitched::new(-0.15), Pitched::new(0.15)];
+    let mut fast: Vec<CameraRenderer> = cams
+        .iter()
+        .map(|c| CameraRenderer::new(c).expect("valid"))
+        .collect();
+    let n = (cams[0].w * cams[0].h) as usize;
+    for (k, (scene, frame)) in scenes.iter().enumerate() {
+        for (index, (cam, r)) in cams.iter().zip(&mut fast).enumerate() {
+            let index = index as u8;
+            let (mut a, mut b) = (vec![0; n * 3], vec![0; n * 3]);
+            let (mut da, mut db) = (vec![0.0; n], vec![0.0; n]);
+            render(scene, cam, &sensor, *frame, index, &mut a, Some(&mut da)).expect("ok");
+            r.render(scene, &sensor, *frame, index, &mut b, Some(&mut db))
+                .expect("ok");
+            let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+            assert_eq!(
+                differ, 0,
+                "{what}: scene {k} (frame {frame}) camera {index}"
+            );
+            let same = da.iter().zip(&db).all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(
+                same,
+                "{what}: scene {k} (frame {frame}) camera {index}: depths differ"
+            );
+        }
+    }
+}
+
+/// Consecutive frames of a scenario (each a new pose: the moving paths), from `first`.
+fn frames(name: &str, first: u32, count: u32, step: u32) -> Vec<(Scene, u32)> {
+    let s = Scenario::by_name(name).expect("scenario");
+    (0..count)
+        .map(|i| first + i * step)
+        .map(|f| (s.scene_at(f), f))
+        .collect()
+}
+
+#[test]
+fn fast_path_matches_the_reference_driving_straight() {
+    let mut scenes = frames("drive-30", 10, 3, 1);
+    // A pedestrian coming into the lane, then gone, then standing still again.
+    scenes.extend(frames("drive-30-to-pedestrian", 50, 2, 1));
+    scenes.extend(frames("drive-30", 52, 1, 1));
+    scenes.extend(frames("pedestrian-4m", 0, 2, 1));
+    scenes.extend(frames("drive-30-lane-change", 90, 2, 10));
+    fast_matches_reference(&scenes, "straight");
+}
+
+#[test]
+fn fast_path_matches_the_reference_on_bends() {
+    let mut scenes = frames("bend-30", 20, 2, 1);
+    // A car fixed to the road (traced with the static world), a pedestrian in the lane.
+    scenes.extend(frames("bend-30-parked-car", 25, 2, 30));
+    scenes.extend(frames("bend-40-to-pedestrian", 60, 2, 1));
+    scenes.extend(frames("bend-30", 60, 1, 1));
+    fast_matches_reference(&scenes, "bend");
+}
+
+#[test]
+fn fast_path_matches_the_reference_on_roads_of_a_profile() {
+    let mut scenes = frames("ramp-30", 40, 2, 1);
+    scenes.extend(frames("ramp-30-stopped-car", 40, 2, 35));
+    scenes.extend(frames("ramp-30-pedestrian-on-kerb", 90, 2, 20));
+    scenes.extend(frames("s-bend-40-to-pedestrian", 30, 2, 40));
+    scenes.extend(frames("s-bend-40", 149, 1, 1));
+    // Back to standing: the static world of a straight road again.
+    scenes.extend(frames("car-approaching", 30, 2, 1));
+    fast_matches_reference(&scenes, "profile");
+}

@@ -60,6 +60,40 @@ fn rgb(c: [u8; 3]) -> [f64; 3] {
     [f64::from(c[0]), f64::from(c[1]), f64::from(c[2])]
 }
 
+/// An axis-aligned box: low and high corners.
+pub(crate) type Aabb = ([f64; 3], [f64; 3]);
+
+/// `b` grown on every side by more than any rounding of a hit on what it encloses (hits are
+/// accepted up to 1e-7 m off a surface): the bound [`may_meet`] tests against.
+pub(crate) fn padded(b: Aabb) -> Aabb {
+    let pad = |v: f64, k: f64| v + k * (1e-6 + 1e-9 * v.abs());
+    (b.0.map(|v| pad(v, -1.0)), b.1.map(|v| pad(v, 1.0)))
+}
+
+/// Whether `ray` may meet something inside the (padded, [`padded`]) box `b` before distance
+/// `before`: the slab test, conservative (a NaN bound never rules a ray out). False only if
+/// every point of the ray up to `before` is outside the box.
+#[inline]
+pub(crate) fn may_meet(ray: &Ray, b: &Aabb, before: f64) -> bool {
+    let (mut enter, mut exit) = (0.0f64, before);
+    for a in 0..3 {
+        let (o, d) = (ray.origin[a], ray.dir[a]);
+        if d == 0.0 {
+            if o < b.0[a] || o > b.1[a] {
+                return false;
+            }
+            continue;
+        }
+        let inv = 1.0 / d;
+        let (t0, t1) = ((b.0[a] - o) * inv, (b.1[a] - o) * inv);
+        let (t0, t1) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
+        enter = enter.max(t0);
+        exit = exit.min(t1);
+    }
+    // Incomparable (NaN) keeps the ray.
+    enter.partial_cmp(&exit) != Some(std::cmp::Ordering::Greater)
+}
+
 /// A ray in the vehicle frame: origin and unit direction.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
@@ -130,6 +164,7 @@ pub(crate) fn trace(
         Ground::Straight { travelled },
         NOMINAL_EYE,
         false,
+        None,
     )
 }
 
@@ -138,6 +173,9 @@ pub(crate) fn trace(
 /// The road is met (or not) first, its distance bounding the search of the props, and shaded
 /// only if no prop is nearer: the same samples as shading it first, for less. `valid` says the
 /// objects are known to be valid ([`Obstacle::is_valid`]; the renderer's culled lists are).
+///
+/// `boxes`, if given, holds a [`padded`] box enclosing each prop: a bent or laid one (costly to
+/// intersect) is tried only if the ray may meet its box first.
 fn trace_from(
     ray: &Ray,
     props: &[Obstacle],
@@ -145,11 +183,19 @@ fn trace_from(
     road: Ground,
     eye: [f64; 3],
     valid: bool,
+    boxes: Option<&[Aabb]>,
 ) -> Sample {
     let mut nearest = ground_t(ray);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
-    for o in props.iter().chain(obstacles) {
+    for (i, o) in props.iter().chain(obstacles).enumerate() {
         if !valid && !o.is_valid() {
+            continue;
+        }
+        let costly = matches!(o, Obstacle::Bent { .. } | Obstacle::Laid { .. });
+        if costly
+            && let Some(b) = boxes.and_then(|b| b.get(i))
+            && !may_meet(ray, b, nearest)
+        {
             continue;
         }
         if let Some(hit) = o.intersect_before(ray, nearest) {
@@ -168,20 +214,32 @@ fn trace_from(
 /// ray in the road's frame ([`Scene::world_ray`]); the sample's depth is still the
 /// vehicle-frame z of what it hit.
 pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
-    background_of(ray, props, scene, false)
+    background_of(ray, props, scene, false, None)
 }
 
-/// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]).
-pub(crate) fn background_valid(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
-    background_of(ray, props, scene, true)
+/// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]), each enclosed by the
+/// [`padded`] box of the same index in `boxes` (in the frame the props are given in).
+pub(crate) fn background_valid(
+    ray: &Ray,
+    props: &[Obstacle],
+    boxes: &[Aabb],
+    scene: &Scene,
+) -> Sample {
+    background_of(ray, props, scene, true, Some(boxes))
 }
 
-fn background_of(ray: &Ray, props: &[Obstacle], scene: &Scene, valid: bool) -> Sample {
+fn background_of(
+    ray: &Ray,
+    props: &[Obstacle],
+    scene: &Scene,
+    valid: bool,
+    boxes: Option<&[Aabb]>,
+) -> Sample {
     if !scene.is_posed() {
         let road = Ground::Straight {
             travelled: scene.travelled,
         };
-        return trace_from(ray, props, &[], road, NOMINAL_EYE, valid);
+        return trace_from(ray, props, &[], road, NOMINAL_EYE, valid, boxes);
     }
     let world = scene.world_ray(ray);
     let road = if let Some(road) = scene.road {
@@ -200,6 +258,7 @@ fn background_of(ray: &Ray, props: &[Obstacle], scene: &Scene, valid: bool) -> S
         road,
         scene.world_point(NOMINAL_EYE),
         valid,
+        boxes,
     );
     if s.t.is_finite() {
         s.depth = ray.at(s.t)[2] as f32;

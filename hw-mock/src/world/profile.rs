@@ -105,6 +105,8 @@ struct Node {
     /// `heading.sin_cos()`, once (every road-frame lookup turns through it).
     sin: f64,
     cos: f64,
+    /// `(k * CELL).sin_cos()`: how far the cell's arc turns (for its bounds).
+    arc: (f64, f64),
 }
 
 impl Node {
@@ -224,6 +226,7 @@ impl Road {
             n.heading = heading_of(profile, a);
             n.k = (heading_of(profile, b) - n.heading) / CELL;
             (n.sin, n.cos) = n.heading.sin_cos();
+            n.arc = (n.k * CELL).sin_cos();
         }
         // From the origin's node on, and back from it: each node is the last one moved along
         // its cell's arc.
