@@ -15,7 +15,7 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
-use crate::world::{Ray, Sample, Scene, background_valid, padded, trace_scene};
+use crate::world::{Prepared, Ray, Sample, Scene, background_valid, trace_scene};
 
 mod sensor_model;
 mod tile;
@@ -275,35 +275,37 @@ impl CameraRenderer {
         self.bg_pose = pose_bits(scene);
         self.bg_fixed.clone_from(&scene.fixed);
         let props = scene.props();
-        // Per prop: its culling bounds in the vehicle frame, and its own box padded for the
-        // per-ray test ([`crate::world::may_meet`]) in the frame it is traced in.
+        // Per prop: its culling bounds in the vehicle frame, and what its rays share.
         let bounds: Vec<_> = props
             .iter()
             .map(|p| {
                 let (sphere, aabb) = p.bounding_sphere().zip(p.aabb())?;
-                Some((in_vehicle_frame(scene, (sphere, aabb)), padded(aabb)))
+                Some((
+                    in_vehicle_frame(scene, (sphere, aabb)),
+                    Prepared::new(p, aabb),
+                ))
             })
             .collect();
         let mut candidates = Vec::with_capacity(props.len());
-        let mut boxes = Vec::with_capacity(props.len());
+        let mut prepared = Vec::with_capacity(props.len());
         for tile in &self.tiles {
             candidates.clear();
-            boxes.clear();
+            prepared.clear();
             for (p, b) in props.iter().zip(&bounds) {
-                let Some((((c, r), (lo, hi)), aabb)) = *b else {
+                let Some((((c, r), (lo, hi)), prep)) = *b else {
                     continue;
                 };
                 // The box test first: it is the tighter and needs no arc cosine.
                 if tile.may_hit_box(lo, hi) && tile.may_hit(c, r) {
                     candidates.push(*p);
-                    boxes.push(aabb);
+                    prepared.push(prep);
                 }
             }
             for v in tile.y0..tile.y1 {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
-                        Some(ray) => background_valid(&ray, &candidates, &boxes, scene),
+                        Some(ray) => background_valid(&ray, &candidates, &prepared, scene),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);

@@ -95,8 +95,28 @@ pub(super) fn intersect(
     min: [f64; 3],
     max: [f64; 3],
     before: f64,
+    planes: Option<&[EndPlane; 2]>,
 ) -> Option<Hit> {
-    intersect_part(ray, k, min, max, [min[2], max[2]], [true, true], before)
+    let whole = [min[2], max[2]];
+    intersect_part(ray, k, min, max, (whole, [true, true]), before, planes)
+}
+
+/// The plane of a bent box's end `along` metres on: through the centre line's point there,
+/// normal to its direction (road frame, x and z).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct EndPlane {
+    point: (f64, f64),
+    normal: (f64, f64),
+}
+
+/// The [`EndPlane`] `along` metres down a road of curvature `k`.
+pub(crate) fn end_plane(k: f64, along: f64) -> EndPlane {
+    let point = point(k, along, 0.0);
+    let (sin, cos) = heading(k, along).sin_cos();
+    EndPlane {
+        point,
+        normal: (-sin, cos),
+    }
 }
 
 /// [`intersect`] restricted to the part of the box between `part[0]` and `part[1]` along (within
@@ -105,15 +125,16 @@ pub(super) fn intersect(
 /// box's.
 ///
 /// Only hits nearer than `before` are looked for (a ray that meets something else first need
-/// not locate the candidates beyond it): the nearest hit if it is nearer, else none.
+/// not locate the candidates beyond it): the nearest hit if it is nearer, else none. `planes`,
+/// if given, are [`end_plane`] of `min[2]` and `max[2]`, computed once for many rays.
 pub(super) fn intersect_part(
     ray: &Ray,
     k: f64,
     min: [f64; 3],
     max: [f64; 3],
-    part: [f64; 2],
-    ends: [bool; 2],
+    (part, ends): ([f64; 2], [bool; 2]),
     before: f64,
+    planes: Option<&[EndPlane; 2]>,
 ) -> Option<Hit> {
     let (o, d) = (ray.origin, ray.dir);
     // Candidate surfaces: 0/1 the mantles at offsets min/max, 2/3 the planes at heights
@@ -158,10 +179,10 @@ pub(super) fn intersect_part(
         if !ends[face - 4] {
             continue;
         }
-        // The plane through the centre line's point `along` on, normal to its direction.
-        let (px, pz) = point(k, along, 0.0);
-        let (sin, cos) = heading(k, along).sin_cos();
-        let (nx, nz) = (-sin, cos);
+        let EndPlane {
+            point: (px, pz),
+            normal: (nx, nz),
+        } = planes.map_or_else(|| end_plane(k, along), |p| p[face - 4]);
         let den = nx * d[0] + nz * d[2];
         if den != 0.0 {
             push((nx * (px - o[0]) + nz * (pz - o[2])) / den, face);

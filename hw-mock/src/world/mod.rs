@@ -94,6 +94,33 @@ pub(crate) fn may_meet(ray: &Ray, b: &Aabb, before: f64) -> bool {
     enter.partial_cmp(&exit) != Some(std::cmp::Ordering::Greater)
 }
 
+/// What the renderer computes once a frame for each prop of a tile, so that its rays need not:
+/// a [`padded`] box enclosing it (in the frame it is traced in), and a bent box's end planes.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Prepared {
+    pub(crate) aabb: Aabb,
+    pub(crate) planes: Option<[bend::EndPlane; 2]>,
+}
+
+impl Prepared {
+    /// For a valid prop enclosed by `aabb` (unpadded).
+    pub(crate) fn new(prop: &Obstacle, aabb: Aabb) -> Self {
+        let planes = match *prop {
+            Obstacle::Bent {
+                curvature: k,
+                min,
+                max,
+                ..
+            } => Some([bend::end_plane(k, min[2]), bend::end_plane(k, max[2])]),
+            _ => None,
+        };
+        Self {
+            aabb: padded(aabb),
+            planes,
+        }
+    }
+}
+
 /// A ray in the vehicle frame: origin and unit direction.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
@@ -174,7 +201,7 @@ pub(crate) fn trace(
 /// only if no prop is nearer: the same samples as shading it first, for less. `valid` says the
 /// objects are known to be valid ([`Obstacle::is_valid`]; the renderer's culled lists are).
 ///
-/// `boxes`, if given, holds a [`padded`] box enclosing each prop: a bent or laid one (costly to
+/// `prepared`, if given, holds each prop's [`Prepared`]: a bent or laid one (costly to
 /// intersect) is tried only if the ray may meet its box first.
 fn trace_from(
     ray: &Ray,
@@ -183,7 +210,7 @@ fn trace_from(
     road: Ground,
     eye: [f64; 3],
     valid: bool,
-    boxes: Option<&[Aabb]>,
+    prepared: Option<&[Prepared]>,
 ) -> Sample {
     let mut nearest = ground_t(ray);
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
@@ -191,14 +218,16 @@ fn trace_from(
         if !valid && !o.is_valid() {
             continue;
         }
+        let prep = prepared.and_then(|p| p.get(i));
         let costly = matches!(o, Obstacle::Bent { .. } | Obstacle::Laid { .. });
         if costly
-            && let Some(b) = boxes.and_then(|b| b.get(i))
-            && !may_meet(ray, b, nearest)
+            && let Some(p) = prep
+            && !may_meet(ray, &p.aabb, nearest)
         {
             continue;
         }
-        if let Some(hit) = o.intersect_before(ray, nearest) {
+        let planes = prep.and_then(|p| p.planes.as_ref());
+        if let Some(hit) = o.intersect_planned(ray, nearest, planes) {
             nearest = hit.t;
             best_hit = Some((o, hit));
         }
@@ -217,15 +246,15 @@ pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample
     background_of(ray, props, scene, false, None)
 }
 
-/// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]), each enclosed by the
-/// [`padded`] box of the same index in `boxes` (in the frame the props are given in).
+/// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]), each with its
+/// [`Prepared`] of the same index in `prepared`.
 pub(crate) fn background_valid(
     ray: &Ray,
     props: &[Obstacle],
-    boxes: &[Aabb],
+    prepared: &[Prepared],
     scene: &Scene,
 ) -> Sample {
-    background_of(ray, props, scene, true, Some(boxes))
+    background_of(ray, props, scene, true, Some(prepared))
 }
 
 fn background_of(
@@ -233,13 +262,13 @@ fn background_of(
     props: &[Obstacle],
     scene: &Scene,
     valid: bool,
-    boxes: Option<&[Aabb]>,
+    prepared: Option<&[Prepared]>,
 ) -> Sample {
     if !scene.is_posed() {
         let road = Ground::Straight {
             travelled: scene.travelled,
         };
-        return trace_from(ray, props, &[], road, NOMINAL_EYE, valid, boxes);
+        return trace_from(ray, props, &[], road, NOMINAL_EYE, valid, prepared);
     }
     let world = scene.world_ray(ray);
     let road = if let Some(road) = scene.road {
@@ -258,7 +287,7 @@ fn background_of(
         road,
         scene.world_point(NOMINAL_EYE),
         valid,
-        boxes,
+        prepared,
     );
     if s.t.is_finite() {
         s.depth = ray.at(s.t)[2] as f32;

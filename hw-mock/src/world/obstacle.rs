@@ -341,6 +341,18 @@ impl Obstacle {
     /// locate the candidates beyond it).
     #[inline]
     pub(crate) fn intersect_before(&self, ray: &Ray, before: f64) -> Option<Hit> {
+        self.intersect_planned(ray, before, None)
+    }
+
+    /// [`Obstacle::intersect_before`], a bent box's end planes given ([`bend::end_plane`] of
+    /// its `min[2]` and `max[2]`, computed once for many rays; ignored for other kinds).
+    #[inline]
+    pub(crate) fn intersect_planned(
+        &self,
+        ray: &Ray,
+        before: f64,
+        planes: Option<&[bend::EndPlane; 2]>,
+    ) -> Option<Hit> {
         match *self {
             Obstacle::Box { min, max, .. } => intersect_box(ray, min, max).filter(|h| h.t < before),
             Obstacle::Cylinder {
@@ -355,7 +367,7 @@ impl Obstacle {
                 min,
                 max,
                 ..
-            } => bend::intersect(ray, curvature, min, max, before),
+            } => bend::intersect(ray, curvature, min, max, before, planes),
             Obstacle::Laid {
                 road,
                 min,

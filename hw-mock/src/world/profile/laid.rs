@@ -97,7 +97,8 @@ pub(in crate::world) fn intersect(
         let (cmin, cmax) = Road::in_cell(c, min, max);
         let ends = [c == first && lo == min[2], c == last && hi == max[2]];
         // A later cell's hit counts only if strictly nearer than the best so far.
-        let Some(mut hit) = bend::intersect_part(&local_ray, n.k, cmin, cmax, local, ends, before)
+        let Some(mut hit) =
+            bend::intersect_part(&local_ray, n.k, cmin, cmax, (local, ends), before, None)
         else {
             continue;
         };
