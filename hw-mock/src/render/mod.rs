@@ -15,7 +15,9 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
-use crate::world::{Prepared, Ray, Sample, Scene, background_valid, trace_scene};
+use crate::world::{
+    Prepared, Ray, Sample, Scene, Still, background_still, background_valid, trace_scene,
+};
 
 mod sensor_model;
 mod tile;
@@ -196,6 +198,10 @@ pub struct CameraRenderer {
     bg_rgb: Vec<u8>,
     bg_depth: Vec<f32>,
     bg_t: Vec<f64>,
+    /// Per pixel, what it sees of road or sky on the straight road's centre line, whatever
+    /// the distance driven ([`Still`]): built by the first such scene that has moved (none for
+    /// a camera that never drives: 72 bytes a pixel).
+    still: Vec<Still>,
     /// Noise-free render of `cached_scene`.
     cached_scene: Option<Scene>,
     /// Per tile: whether the clean buffers differ from the background there (an obstacle was
@@ -250,6 +256,7 @@ impl CameraRenderer {
             bg_rgb: vec![0; pixels * 3],
             bg_depth: vec![0.0; pixels],
             bg_t: vec![0.0; pixels],
+            still: Vec::new(),
             cached_scene: None,
             dirty: Vec::new(),
             clean_rgb: Vec::new(),
@@ -286,6 +293,16 @@ impl CameraRenderer {
                 ))
             })
             .collect();
+        let straight = !scene.is_posed();
+        if straight && scene.travelled != 0.0 && self.still.is_empty() {
+            // An invalid ray's entry is never read.
+            let sky = |r: &StoredRay| {
+                r.ray()
+                    .map_or(Still::Sky(INVALID_SAMPLE), |r| Still::new(&r))
+            };
+            self.still = self.rays.iter().map(sky).collect();
+        }
+        let still = straight && !self.still.is_empty();
         let mut candidates = Vec::with_capacity(props.len());
         let mut prepared = Vec::with_capacity(props.len());
         for tile in &self.tiles {
@@ -305,6 +322,10 @@ impl CameraRenderer {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
+                        Some(ray) if still => {
+                            let (p, t) = (&candidates, scene.travelled);
+                            background_still(&ray, p, &prepared, &self.still[i], t)
+                        }
                         Some(ray) => background_valid(&ray, &candidates, &prepared, scene),
                         None => INVALID_SAMPLE,
                     };

@@ -1,10 +1,10 @@
 //! The bottom layer of every pixel: the road plane (y = 0) and the sky, their textures a
 //! function of the road-frame point (the sky's of the direction).
 
-use super::shading::{finish, grain, quantise};
+use super::shading::{finish, finish_hazed, grain, haze, light, quantise};
 use super::{
-    KERB_WIDTH, LANE_HALF_WIDTH, ROAD_HALF_WIDTH, Ray, SKY_HORIZON, Sample, bend, footprint, lerp3,
-    profile, scale3,
+    KERB_WIDTH, LANE_HALF_WIDTH, NOMINAL_EYE, ROAD_HALF_WIDTH, Ray, SKY_HORIZON, Sample, bend,
+    footprint, lerp3, profile, scale3,
 };
 use crate::noise::{band_coverage, fbm, periodic_coverage, value_noise};
 
@@ -19,15 +19,29 @@ const SEED_SKY: u64 = 0x05C7_C10D;
 /// Road-surface albedo at (x, z): asphalt, dashed lane marks at x = +-1.75 (3 m every 9 m,
 /// starting at z = 0), solid edge lines, kerb at |x| in [5, 5.25], grass beyond.
 pub(super) fn road_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
+    road_layers(x, z, along, road_bands(x, across))
+}
+
+/// The coverages of [`road_albedo`]'s bands across the road at `x` (none depends on z): the
+/// lane marks' (before their dashing), the edge line's, the kerb's and the grass's.
+#[inline]
+fn road_bands(x: f64, across: f64) -> [f64; 4] {
     let ax = x.abs();
-    let dash = band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06)
-        * periodic_coverage(z, along, 9.0, 0.0, 3.0);
-    let edge = band_coverage(ax, across, 4.75, 4.9);
+    [
+        band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06),
+        band_coverage(ax, across, 4.75, 4.9),
+        band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH),
+        band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY),
+    ]
+}
+
+/// [`road_albedo`] of the bands [`road_bands`] gives.
+#[inline]
+fn road_layers(x: f64, z: f64, along: f64, [marks, edge, kerb_w, grass_w]: [f64; 4]) -> [f64; 3] {
+    let dash = marks * periodic_coverage(z, along, 9.0, 0.0, 3.0);
     let c = asphalt(x, z, along);
     let c = over(c, (dash + edge).min(1.0), || paint(x, z));
-    let kerb_w = band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH);
     let c = over(c, kerb_w, || kerb(x, z, along));
-    let grass_w = band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY);
     over(c, grass_w, || grass(x, z, along))
 }
 
@@ -150,5 +164,76 @@ pub(super) fn ground_or_sky(ray: &Ray, road: Ground, eye: [f64; 3]) -> Sample {
         rgb: [quantise(c[0]), quantise(c[1]), quantise(c[2])],
         depth: f32::INFINITY,
         t: f64::INFINITY,
+    }
+}
+
+/// What a pixel sees of road or sky from a vehicle on the straight road's centre line, unturned
+/// ([`super::Scene::is_posed`] false), whatever `travelled`: the ray meets the road at the
+/// same vehicle-frame point (only the texture's z moves) and the same sky. Computed once per
+/// pixel, it leaves a moving frame only the textures to evaluate, bit for bit as
+/// [`ground_or_sky`] does.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Still {
+    Sky(Sample),
+    Ground {
+        /// The vehicle-frame point met, its distance along the ray, and the haze there.
+        x: f64,
+        z: f64,
+        t: f64,
+        haze: f64,
+        /// The footprint along the road (for the textures) and [`road_bands`].
+        along: f64,
+        bands: [f64; 4],
+    },
+}
+
+impl Still {
+    pub(crate) fn new(ray: &Ray) -> Self {
+        let t = ground_t(ray);
+        if t == f64::INFINITY {
+            return Self::Sky(ground_or_sky(
+                ray,
+                Ground::Straight { travelled: 0.0 },
+                NOMINAL_EYE,
+            ));
+        }
+        let p = ray.at(t);
+        let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0], NOMINAL_EYE);
+        Self::Ground {
+            x: p[0],
+            z: p[2],
+            t,
+            haze: haze(dist),
+            along,
+            bands: road_bands(p[0], across),
+        }
+    }
+
+    /// How far along the ray it meets the road (infinity: the sky).
+    #[inline]
+    pub(crate) fn t(&self) -> f64 {
+        match self {
+            Self::Sky(s) => s.t,
+            Self::Ground { t, .. } => *t,
+        }
+    }
+
+    /// [`ground_or_sky`] of the ray on the straight road, the vehicle `travelled` metres down it.
+    #[inline]
+    pub(crate) fn shade(&self, travelled: f64) -> Sample {
+        match *self {
+            Self::Sky(s) => s,
+            Self::Ground {
+                x,
+                z,
+                t,
+                haze,
+                along,
+                bands,
+            } => {
+                let albedo = road_layers(x, z + travelled, along, bands);
+                finish_hazed(albedo, light([0.0, 1.0, 0.0]), haze, z, t)
+            }
+        }
     }
 }
