@@ -21,9 +21,12 @@
 //! - `bend-30`: a constant bend;
 //! - `ramp-30`, `s-bend-40`: roads of a curvature profile.
 //!
-//! It prints, per case, the median pairs/s over the runs and the spread (min..max).
+//! It prints, per case, the median pairs/s over the runs and the spread (min..max). With
+//! `RENDER_BENCH_CHECK=1` it then renders the first frames of each case again through the
+//! reference [`hw_mock::render`] and prints how many bytes of image and depth differ (the fast
+//! path is meant to be bit for bit the reference: 0).
 
-use hw_mock::{CameraRenderer, RayCamera, Scenario, SensorModel};
+use hw_mock::{CameraRenderer, RayCamera, Scenario, Scene, SensorModel, render};
 use std::time::Instant;
 
 const CASES: [&str; 6] = [
@@ -127,6 +130,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             rates[0],
             rates[rates.len() - 1]
         );
+        if std::env::var_os("RENDER_BENCH_CHECK").is_some() {
+            let scenes: Vec<(Scene, u32)> = (1..=3).map(|f| (scenario.scene_at(f), f)).collect();
+            let differ = check(&scenes, [&left_cam, &right_cam], &sensor)?;
+            println!(
+                "{name:>16}: {differ} bytes differ from the reference (3 frames, both cameras)"
+            );
+        }
     }
     Ok(())
+}
+
+/// Renders `scenes` in order through fresh fast renderers and through the reference; the
+/// number of image bytes and depth values that differ.
+fn check(
+    scenes: &[(Scene, u32)],
+    cams: [&Pinhole; 2],
+    sensor: &SensorModel,
+) -> Result<usize, Box<dyn std::error::Error>> {
+    let n = 640 * 480;
+    let mut differ = 0;
+    for (index, cam) in cams.into_iter().enumerate() {
+        let index = u8::try_from(index)?;
+        let mut fast = CameraRenderer::new(cam)?;
+        for (scene, frame) in scenes {
+            let (mut a, mut b) = (vec![0u8; n * 3], vec![0u8; n * 3]);
+            let (mut da, mut db) = (vec![0f32; n], vec![0f32; n]);
+            render(scene, cam, sensor, *frame, index, &mut a, Some(&mut da))?;
+            fast.render(scene, sensor, *frame, index, &mut b, Some(&mut db))?;
+            differ += a.iter().zip(&b).filter(|(x, y)| x != y).count();
+            differ += da
+                .iter()
+                .zip(&db)
+                .filter(|(x, y)| x.to_bits() != y.to_bits())
+                .count();
+        }
+    }
+    Ok(differ)
 }
