@@ -15,8 +15,9 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
+use crate::world::profile::cell_boxes;
 use crate::world::{
-    Prepared, Ray, Sample, Scene, Still, background_still, background_valid, trace_scene,
+    Frame, Prepared, Ray, Sample, Scene, Still, background_still, background_valid, trace_scene,
 };
 
 mod sensor_model;
@@ -283,16 +284,19 @@ impl CameraRenderer {
         self.bg_fixed.clone_from(&scene.fixed);
         let props = scene.props();
         // Per prop: its culling bounds in the vehicle frame, and what its rays share.
+        let cells: Vec<_> = props.iter().map(cell_boxes).collect();
         let bounds: Vec<_> = props
             .iter()
-            .map(|p| {
+            .zip(&cells)
+            .map(|(p, cells)| {
                 let (sphere, aabb) = p.bounding_sphere().zip(p.aabb())?;
                 Some((
                     in_vehicle_frame(scene, (sphere, aabb)),
-                    Prepared::new(p, aabb),
+                    Prepared::new(p, aabb, cells),
                 ))
             })
             .collect();
+        let frame = Frame::of(scene);
         let straight = !scene.is_posed();
         if straight && scene.travelled != 0.0 && self.still.is_empty() {
             // An invalid ray's entry is never read.
@@ -326,7 +330,7 @@ impl CameraRenderer {
                             let (p, t) = (&candidates, scene.travelled);
                             background_still(&ray, p, &prepared, &self.still[i], t)
                         }
-                        Some(ray) => background_valid(&ray, &candidates, &prepared, scene),
+                        Some(ray) => background_valid(&ray, &candidates, &prepared, &frame),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);

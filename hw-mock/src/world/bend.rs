@@ -19,8 +19,16 @@ pub fn locate(k: f64, x: f64, z: f64) -> (f64, f64) {
     if k == 0.0 {
         return (z, x);
     }
-    let along = (k.abs() * z).atan2(1.0 + k * x) / k.abs();
-    (along, locate_offset(k, x, z))
+    (locate_along(k, x, z), locate_offset(k, x, z))
+}
+
+/// The along of [`locate`] alone (bit for bit).
+#[inline]
+fn locate_along(k: f64, x: f64, z: f64) -> f64 {
+    if k == 0.0 {
+        return z;
+    }
+    (k.abs() * z).atan2(1.0 + k * x) / k.abs()
 }
 
 /// The offset of [`locate`] alone (bit for bit), without its arc tangent.
@@ -196,10 +204,14 @@ pub(super) fn intersect_part(
         let p = ray.at(t);
         let within = |v: f64, a: usize| v >= min[a] - ON_SURFACE && v <= max[a] + ON_SURFACE;
         // Cheapest test first: the height needs no locating, the offset no arc tangent.
-        if !within(p[1], 1) || !within(locate_offset(k, p[0], p[2]), 0) {
+        if !within(p[1], 1) {
             return None;
         }
-        let (along, offset) = locate(k, p[0], p[2]);
+        let offset = locate_offset(k, p[0], p[2]);
+        if !within(offset, 0) {
+            return None;
+        }
+        let along = locate_along(k, p[0], p[2]);
         let in_part = along >= part[0] - ON_SURFACE && along <= part[1] + ON_SURFACE;
         if !in_part {
             return None;

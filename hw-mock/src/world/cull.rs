@@ -38,16 +38,19 @@ pub(crate) fn may_meet(ray: &Ray, b: &Aabb, before: f64) -> bool {
 }
 
 /// What the renderer computes once a frame for each prop of a tile, so that its rays need not:
-/// a [`padded`] box enclosing it (in the frame it is traced in), and a bent box's end planes.
+/// a [`padded`] box enclosing it (in the frame it is traced in), a bent box's end planes, and
+/// a laid box's cell boxes ([`super::profile::cell_boxes`]; empty for other kinds).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Prepared {
+pub(crate) struct Prepared<'a> {
     pub(crate) aabb: Aabb,
     pub(crate) planes: Option<[bend::EndPlane; 2]>,
+    pub(crate) cells: &'a [Aabb],
 }
 
-impl Prepared {
-    /// For a valid prop enclosed by `aabb` (unpadded).
-    pub(crate) fn new(prop: &Obstacle, aabb: Aabb) -> Self {
+impl<'a> Prepared<'a> {
+    /// For a valid prop enclosed by `aabb` (unpadded), its `cells` those
+    /// [`super::profile::cell_boxes`] gives.
+    pub(crate) fn new(prop: &Obstacle, aabb: Aabb, cells: &'a [Aabb]) -> Self {
         let planes = match *prop {
             Obstacle::Bent {
                 curvature: k,
@@ -60,6 +63,7 @@ impl Prepared {
         Self {
             aabb: padded(aabb),
             planes,
+            cells,
         }
     }
 }

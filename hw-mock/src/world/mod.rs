@@ -185,8 +185,7 @@ fn nearest_prop<'a>(
         {
             continue;
         }
-        let planes = prep.and_then(|p| p.planes.as_ref());
-        if let Some(hit) = o.intersect_planned(ray, nearest, planes) {
+        if let Some(hit) = o.intersect_prepared(ray, nearest, prep) {
             nearest = hit.t;
             best_hit = Some((o, hit));
         }
@@ -215,7 +214,7 @@ pub(crate) fn background_still(
 /// ray in the road's frame ([`Scene::world_ray`]); the sample's depth is still the
 /// vehicle-frame z of what it hit.
 pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
-    background_of(ray, props, scene, false, None)
+    background_of(ray, props, &Frame::of(scene), false, None)
 }
 
 /// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]), each with its
@@ -224,43 +223,64 @@ pub(crate) fn background_valid(
     ray: &Ray,
     props: &[Obstacle],
     prepared: &[Prepared],
-    scene: &Scene,
+    frame: &Frame,
 ) -> Sample {
-    background_of(ray, props, scene, true, Some(prepared))
+    background_of(ray, props, frame, true, Some(prepared))
+}
+
+/// What [`background`] needs of a scene for every ray of a frame: computed once a frame by the
+/// renderer, once a ray by the reference (the same numbers either way).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Frame<'a> {
+    scene: &'a Scene,
+    /// For a posed scene: the heading's sine and cosine, the nominal eye in the road's frame.
+    posed: Option<((f64, f64), [f64; 3])>,
+    road: Ground,
+}
+
+impl<'a> Frame<'a> {
+    pub(crate) fn of(scene: &'a Scene) -> Self {
+        if !scene.is_posed() {
+            let road = Ground::Straight {
+                travelled: scene.travelled,
+            };
+            return Self {
+                scene,
+                posed: None,
+                road,
+            };
+        }
+        let turn = scene.heading.sin_cos();
+        let road = if let Some(road) = scene.road {
+            Ground::Profile(road)
+        } else if scene.bend == 0.0 {
+            Ground::Straight { travelled: 0.0 }
+        } else {
+            Ground::Bend {
+                curvature: scene.bend,
+            }
+        };
+        let eye = scene.world_point_turned(NOMINAL_EYE, turn);
+        Self {
+            scene,
+            posed: Some((turn, eye)),
+            road,
+        }
+    }
 }
 
 fn background_of(
     ray: &Ray,
     props: &[Obstacle],
-    scene: &Scene,
+    frame: &Frame,
     valid: bool,
     prepared: Option<&[Prepared]>,
 ) -> Sample {
-    if !scene.is_posed() {
-        let road = Ground::Straight {
-            travelled: scene.travelled,
-        };
-        return trace_from(ray, props, &[], road, NOMINAL_EYE, valid, prepared);
-    }
-    let world = scene.world_ray(ray);
-    let road = if let Some(road) = scene.road {
-        Ground::Profile(road)
-    } else if scene.bend == 0.0 {
-        Ground::Straight { travelled: 0.0 }
-    } else {
-        Ground::Bend {
-            curvature: scene.bend,
-        }
+    let Some((turn, eye)) = frame.posed else {
+        return trace_from(ray, props, &[], frame.road, NOMINAL_EYE, valid, prepared);
     };
-    let mut s = trace_from(
-        &world,
-        props,
-        &[],
-        road,
-        scene.world_point(NOMINAL_EYE),
-        valid,
-        prepared,
-    );
+    let world = frame.scene.world_ray_turned(ray, turn);
+    let mut s = trace_from(&world, props, &[], frame.road, eye, valid, prepared);
     if s.t.is_finite() {
         s.depth = ray.at(s.t)[2] as f32;
     }
@@ -513,7 +533,12 @@ impl Scene {
 
     /// A vehicle-frame point in the road's frame.
     pub fn world_point(&self, p: [f64; 3]) -> [f64; 3] {
-        let (s, c) = self.heading.sin_cos();
+        self.world_point_turned(p, self.heading.sin_cos())
+    }
+
+    /// [`Scene::world_point`] for the heading's sine and cosine `(s, c)`.
+    #[inline]
+    fn world_point_turned(&self, p: [f64; 3], (s, c): (f64, f64)) -> [f64; 3] {
         [
             self.lateral + p[0] * c - p[2] * s,
             p[1],
@@ -530,10 +555,15 @@ impl Scene {
 
     /// A vehicle-frame ray in the road's frame.
     pub fn world_ray(&self, r: &Ray) -> Ray {
-        let (s, c) = self.heading.sin_cos();
+        self.world_ray_turned(r, self.heading.sin_cos())
+    }
+
+    /// [`Scene::world_ray`] for the heading's sine and cosine `(s, c)`.
+    #[inline]
+    fn world_ray_turned(&self, r: &Ray, (s, c): (f64, f64)) -> Ray {
         let d = r.dir;
         Ray {
-            origin: self.world_point(r.origin),
+            origin: self.world_point_turned(r.origin, (s, c)),
             dir: [d[0] * c - d[2] * s, d[1], d[0] * s + d[2] * c],
         }
     }

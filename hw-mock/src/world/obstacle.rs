@@ -341,18 +341,20 @@ impl Obstacle {
     /// locate the candidates beyond it).
     #[inline]
     pub(crate) fn intersect_before(&self, ray: &Ray, before: f64) -> Option<Hit> {
-        self.intersect_planned(ray, before, None)
+        self.intersect_prepared(ray, before, None)
     }
 
-    /// [`Obstacle::intersect_before`], a bent box's end planes given ([`bend::end_plane`] of
-    /// its `min[2]` and `max[2]`, computed once for many rays; ignored for other kinds).
+    /// [`Obstacle::intersect_before`], with what the renderer computed once a frame for it
+    /// (a bent box's end planes, a laid box's cell boxes; [`super::Prepared`]).
     #[inline]
-    pub(crate) fn intersect_planned(
+    pub(crate) fn intersect_prepared(
         &self,
         ray: &Ray,
         before: f64,
-        planes: Option<&[bend::EndPlane; 2]>,
+        prepared: Option<&super::Prepared>,
     ) -> Option<Hit> {
+        let planes = prepared.and_then(|p| p.planes.as_ref());
+        let cells = prepared.map_or(&[][..], |p| p.cells);
         match *self {
             Obstacle::Box { min, max, .. } => intersect_box(ray, min, max).filter(|h| h.t < before),
             Obstacle::Cylinder {
@@ -374,7 +376,7 @@ impl Obstacle {
                 max,
                 part,
                 ..
-            } => profile::intersect(ray, road, min, max, part, before),
+            } => profile::intersect(ray, road, min, max, part, before, cells),
         }
     }
 

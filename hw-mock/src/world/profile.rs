@@ -499,6 +499,7 @@ const POST_MATERIAL: Material = Material {
 
 mod grid;
 mod laid;
+pub(crate) use laid::cell_boxes;
 pub(super) use laid::{bounds, intersect, is_valid};
 
 #[cfg(test)]

@@ -76,16 +76,23 @@ pub(in crate::world) fn intersect(
     max: [f64; 3],
     part: [f64; 2],
     before: f64,
+    cells: &[Aabb],
 ) -> Option<Hit> {
     let (lo, hi) = (min[2].max(part[0]), max[2].min(part[1]));
     let (first, last) = road.span(lo, hi);
     let mut best: Option<Hit> = None;
-    for (c, local) in road.cells(lo, hi) {
+    for (j, (c, local)) in road.cells(lo, hi).enumerate() {
         let n = &road.nodes[c];
         let before = best.as_ref().map_or(before, |b| b.t.min(before));
         // A ray that cannot meet the cell's part of the box before `before` needs no arcs.
-        if c != 0 && c != CELLS - 1 && !may_meet(ray, &cell_box(n, min, max), before) {
-            continue;
+        if c != 0 && c != CELLS - 1 {
+            let cell = cells
+                .get(j)
+                .copied()
+                .unwrap_or_else(|| cell_box(n, min, max));
+            if !may_meet(ray, &cell, before) {
+                continue;
+            }
         }
         let (ox, oz) = n.local(ray.origin[0], ray.origin[2]);
         let (sin, cos) = (n.sin, n.cos);
@@ -109,6 +116,27 @@ pub(in crate::world) fn intersect(
         best = Some(hit);
     }
     best
+}
+
+/// The [`cell_box`] of every cell a laid box is drawn in, in the order [`intersect`] goes
+/// through them (none for any other obstacle, or an invalid one): what the renderer computes
+/// once a frame rather than once a ray.
+pub(crate) fn cell_boxes(o: &super::Obstacle) -> Vec<Aabb> {
+    match *o {
+        super::Obstacle::Laid {
+            road,
+            min,
+            max,
+            part,
+            ..
+        } if is_valid(road, min, max, part) => {
+            let (lo, hi) = (min[2].max(part[0]), max[2].min(part[1]));
+            road.cells(lo, hi)
+                .map(|(c, _)| cell_box(&road.nodes[c], min, max))
+                .collect()
+        }
+        _ => Vec::new(),
+    }
 }
 
 /// A road-frame box ([`padded`]) enclosing the part between offsets `min[0]..max[0]` and
