@@ -5,8 +5,14 @@
 //! for a live 30 fps stereo feed:
 //! - each pixel's ray is computed once (rays are static for a calibrated camera);
 //! - the static world (road, sky, roadside) is rendered once (once per frame for a moving
-//!   vehicle, [`Scene::travelled`]: then each frame costs a full render, a few frames a second
-//!   at 640x480, for offline replay rather than a live feed);
+//!   vehicle, [`Scene::travelled`]: then each frame costs a full render of it, 5-14 stereo
+//!   pairs a second at 640x480 on one core, for offline replay rather than a live feed; see
+//!   `hw-mock/README.md` and the `render_bench` example). That render looks for props only
+//!   nearer than the road, tries a bent or laid prop only if the ray meets its padded box
+//!   (and a laid one cell by cell), with what rays share computed once a frame
+//!   ([`crate::world::Prepared`], [`crate::world::Frame`]), and shades the road only where no
+//!   prop hides it; on the straight road each pixel's road point, footprint and sky are kept
+//!   ([`crate::world::Still`]), leaving only the textures to evaluate;
 //! - the noise-free image of the last scene is cached (scenes are compared for equality, not
 //!   hashed, so there are no collisions), and a changed scene only re-traces obstacles, and only
 //!   in 16x16 pixel tiles whose bounding cone of rays can meet the obstacle's bounding sphere;
