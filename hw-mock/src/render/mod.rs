@@ -23,7 +23,8 @@
 use crate::RayCamera;
 use crate::world::profile::cell_boxes;
 use crate::world::{
-    Frame, Prepared, Ray, Sample, Scene, Still, background_still, background_valid, trace_scene,
+    Frame, Prepared, Ray, Sample, Scene, Still, background_still, background_valid, cull_bounds,
+    trace_scene,
 };
 
 mod sensor_model;
@@ -31,7 +32,7 @@ mod tile;
 
 pub use sensor_model::{Response, SensorModel};
 use sensor_model::{apply_sensor, noise_field, response_table};
-use tile::{TILE, Tile, in_vehicle_frame, tile_cone};
+use tile::{Bounds, TILE, Tile, in_vehicle_frame, tile_cone};
 
 /// Why a render could not be done. Rendering never panics; it reports these instead.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -295,11 +296,13 @@ impl CameraRenderer {
             .iter()
             .zip(&cells)
             .map(|(p, cells)| {
-                let (sphere, aabb) = p.bounding_sphere().zip(p.aabb())?;
-                Some((
-                    in_vehicle_frame(scene, (sphere, aabb)),
-                    Prepared::new(p, aabb, cells),
-                ))
+                let aabb = p.aabb()?;
+                // Each piece's culling bounds in the vehicle frame, and its box in the prop's.
+                let culls: Vec<_> = cull_bounds(p)
+                    .into_iter()
+                    .map(|(sphere, aabb)| (in_vehicle_frame(scene, (sphere, aabb)), aabb))
+                    .collect();
+                Some((culls, Prepared::new(p, aabb, cells)))
             })
             .collect();
         let frame = Frame::of(scene);
@@ -314,20 +317,43 @@ impl CameraRenderer {
         }
         let still = straight && !self.still.is_empty();
         let mut candidates = Vec::with_capacity(props.len());
-        let mut prepared = Vec::with_capacity(props.len());
+        let mut chosen = Vec::with_capacity(props.len());
+        let mut pieces = Vec::new();
         for tile in &self.tiles {
             candidates.clear();
-            prepared.clear();
+            chosen.clear();
+            pieces.clear();
             for (p, b) in props.iter().zip(&bounds) {
-                let Some((((c, r), (lo, hi)), prep)) = *b else {
+                let Some((culls, prep)) = b else {
                     continue;
                 };
                 // The box test first: it is the tighter and needs no arc cosine.
-                if tile.may_hit_box(lo, hi) && tile.may_hit(c, r) {
+                let seen = |((c, r), (lo, hi)): &Bounds| {
+                    tile.may_hit_box(*lo, *hi) && tile.may_hit(*c, *r)
+                };
+                let start = pieces.len();
+                pieces.extend(
+                    culls
+                        .iter()
+                        .filter(|(b, _)| seen(b))
+                        .map(|(_, piece)| *piece),
+                );
+                if pieces.len() > start {
                     candidates.push(*p);
-                    prepared.push(prep);
+                    // A prop of one piece is tested against its own box already.
+                    let range = if culls.len() > 1 {
+                        start..pieces.len()
+                    } else {
+                        start..start
+                    };
+                    chosen.push((*prep, range));
                 }
             }
+            // The pieces of a long prop this tile may see: a ray must meet one of them.
+            let prepared: Vec<Prepared> = chosen
+                .iter()
+                .map(|(prep, range)| prep.with_pieces(pieces.get(range.clone()).unwrap_or(&[])))
+                .collect();
             for v in tile.y0..tile.y1 {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;

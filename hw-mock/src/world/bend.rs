@@ -75,13 +75,13 @@ pub(super) fn is_valid(k: f64, min: [f64; 3], max: [f64; 3]) -> bool {
 }
 
 /// A sphere (centre, radius) enclosing something.
-pub(super) type Sphere = ([f64; 3], f64);
+pub(crate) type Sphere = ([f64; 3], f64);
 /// An axis-aligned box (low and high corners).
-pub(super) type Aabb = ([f64; 3], [f64; 3]);
+pub(crate) type Aabb = ([f64; 3], [f64; 3]);
 
 /// A sphere and a road-frame box enclosing a valid bent box: the middle of the box, and as
 /// far as the longest arc of it plus its width and height.
-pub(super) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
+pub(crate) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
     let mid = |a: usize| 0.5 * (min[a] + max[a]);
     let (x, z) = point(k, mid(2), mid(0));
     let centre = [x, mid(1), z];

@@ -45,6 +45,9 @@ pub(crate) struct Prepared<'a> {
     pub(crate) aabb: Aabb,
     pub(crate) planes: Option<[bend::EndPlane; 2]>,
     pub(crate) cells: &'a [Aabb],
+    /// [`padded`] boxes of pieces of a long prop ([`cull_bounds`]): if any, a ray that meets
+    /// none of them misses the prop.
+    pub(crate) pieces: &'a [Aabb],
 }
 
 impl<'a> Prepared<'a> {
@@ -64,6 +67,56 @@ impl<'a> Prepared<'a> {
             aabb: padded(aabb),
             planes,
             cells,
+            pieces: &[],
         }
     }
+
+    /// The same, with `pieces`.
+    pub(crate) fn with_pieces<'b>(&self, pieces: &'b [Aabb]) -> Prepared<'b>
+    where
+        'a: 'b,
+    {
+        Prepared {
+            aabb: self.aabb,
+            planes: self.planes,
+            cells: self.cells,
+            pieces,
+        }
+    }
+}
+
+/// Longest stretch of a bent box culled as one, metres along: a long one (the facade and the
+/// guard rail of a bend run 126 and 145 m) is culled piece by piece, each by its own bounds,
+/// instead of by the bounds of its whole arc, which take in much of the road ahead.
+const CULL_PIECE: f64 = 8.0;
+
+/// Bounding spheres and [`padded`] boxes (in the prop's frame) that together enclose a valid
+/// prop: its own ([`Obstacle::bounding_sphere`], [`Obstacle::aabb`]), or for a long bent box
+/// those of its pieces of at most [`CULL_PIECE`] metres along.
+pub(crate) fn cull_bounds(prop: &Obstacle) -> Vec<(([f64; 3], f64), Aabb)> {
+    let Some((sphere, aabb)) = prop.bounding_sphere().zip(prop.aabb()) else {
+        return Vec::new();
+    };
+    if let Obstacle::Bent {
+        curvature: k,
+        min,
+        max,
+        ..
+    } = *prop
+    {
+        let length = max[2] - min[2];
+        if length > CULL_PIECE {
+            let pieces = (length / CULL_PIECE).ceil().min(1e4) as usize;
+            let step = length / pieces as f64;
+            return (0..pieces)
+                .map(|i| {
+                    let a = min[2] + step * i as f64;
+                    let b = if i + 1 == pieces { max[2] } else { a + step };
+                    let (sphere, aabb) = bend::bounds(k, [min[0], min[1], a], [max[0], max[1], b]);
+                    (sphere, padded(aabb))
+                })
+                .collect();
+        }
+    }
+    vec![(sphere, padded(aabb))]
 }

@@ -111,7 +111,7 @@ mod ground;
 pub mod profile;
 mod shading;
 
-pub(crate) use cull::{Aabb, Prepared, may_meet, padded};
+pub(crate) use cull::{Aabb, Prepared, cull_bounds, may_meet, padded};
 
 pub(crate) use ground::Still;
 #[cfg(test)]
@@ -181,7 +181,8 @@ fn nearest_prop<'a>(
         let costly = matches!(o, Obstacle::Bent { .. } | Obstacle::Laid { .. });
         if costly
             && let Some(p) = prep
-            && !may_meet(ray, &p.aabb, nearest)
+            && (!may_meet(ray, &p.aabb, nearest)
+                || !p.pieces.is_empty() && !p.pieces.iter().any(|b| may_meet(ray, b, nearest)))
         {
             continue;
         }
