@@ -5,8 +5,14 @@
 //! for a live 30 fps stereo feed:
 //! - each pixel's ray is computed once (rays are static for a calibrated camera);
 //! - the static world (road, sky, roadside) is rendered once (once per frame for a moving
-//!   vehicle, [`Scene::travelled`]: then each frame costs a full render, a few frames a second
-//!   at 640x480, for offline replay rather than a live feed);
+//!   vehicle, [`Scene::travelled`]: then each frame costs a full render of it, 5-14 stereo
+//!   pairs a second at 640x480 on one core, for offline replay rather than a live feed; see
+//!   `hw-mock/README.md` and the `render_bench` example). That render looks for props only
+//!   nearer than the road, tries a bent or laid prop only if the ray meets its padded box
+//!   (and a laid one cell by cell), with what rays share computed once a frame
+//!   ([`crate::world::Prepared`], [`crate::world::Frame`]), and shades the road only where no
+//!   prop hides it; on the straight road each pixel's road point, footprint and sky are kept
+//!   ([`crate::world::Still`]), leaving only the textures to evaluate;
 //! - the noise-free image of the last scene is cached (scenes are compared for equality, not
 //!   hashed, so there are no collisions), and a changed scene only re-traces obstacles, and only
 //!   in 16x16 pixel tiles whose bounding cone of rays can meet the obstacle's bounding sphere;
@@ -15,14 +21,18 @@
 //!   per-frame offset (one saturating byte add per sample).
 
 use crate::RayCamera;
-use crate::world::{Ray, Sample, Scene, background, trace_scene};
+use crate::world::profile::cell_boxes;
+use crate::world::{
+    Frame, Prepared, Ray, Sample, Scene, Still, background_still, background_valid, cull_bounds,
+    trace_scene,
+};
 
 mod sensor_model;
 mod tile;
 
 pub use sensor_model::{Response, SensorModel};
 use sensor_model::{apply_sensor, noise_field, response_table};
-use tile::{TILE, Tile, in_vehicle_frame, tile_cone};
+use tile::{Bounds, TILE, Tile, in_vehicle_frame, tile_cone};
 
 /// Why a render could not be done. Rendering never panics; it reports these instead.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -196,6 +206,10 @@ pub struct CameraRenderer {
     bg_rgb: Vec<u8>,
     bg_depth: Vec<f32>,
     bg_t: Vec<f64>,
+    /// Per pixel, what it sees of road or sky on the straight road's centre line, whatever
+    /// the distance driven ([`Still`]): built by the first such scene that has moved (none for
+    /// a camera that never drives: 80 bytes a pixel, 25 MB at 640x480).
+    still: Vec<Still>,
     /// Noise-free render of `cached_scene`.
     cached_scene: Option<Scene>,
     /// Per tile: whether the clean buffers differ from the background there (an obstacle was
@@ -250,6 +264,7 @@ impl CameraRenderer {
             bg_rgb: vec![0; pixels * 3],
             bg_depth: vec![0.0; pixels],
             bg_t: vec![0.0; pixels],
+            still: Vec::new(),
             cached_scene: None,
             dirty: Vec::new(),
             clean_rgb: Vec::new(),
@@ -275,26 +290,79 @@ impl CameraRenderer {
         self.bg_pose = pose_bits(scene);
         self.bg_fixed.clone_from(&scene.fixed);
         let props = scene.props();
+        // Per prop: its culling bounds in the vehicle frame, and what its rays share.
+        let cells: Vec<_> = props.iter().map(cell_boxes).collect();
         let bounds: Vec<_> = props
             .iter()
-            .map(|p| {
-                p.bounding_sphere()
-                    .zip(p.aabb())
-                    .map(|b| in_vehicle_frame(scene, b))
+            .zip(&cells)
+            .map(|(p, cells)| {
+                let aabb = p.aabb()?;
+                // Each piece's culling bounds in the vehicle frame, and its box in the prop's.
+                let culls: Vec<_> = cull_bounds(p)
+                    .into_iter()
+                    .map(|(sphere, aabb)| (in_vehicle_frame(scene, (sphere, aabb)), aabb))
+                    .collect();
+                Some((culls, Prepared::new(p, aabb, cells)))
             })
             .collect();
+        let frame = Frame::of(scene);
+        let straight = !scene.is_posed();
+        if straight && scene.travelled != 0.0 && self.still.is_empty() {
+            // An invalid ray's entry is never read.
+            let sky = |r: &StoredRay| {
+                r.ray()
+                    .map_or(Still::Sky(INVALID_SAMPLE), |r| Still::new(&r))
+            };
+            self.still = self.rays.iter().map(sky).collect();
+        }
+        let still = straight && !self.still.is_empty();
         let mut candidates = Vec::with_capacity(props.len());
+        let mut chosen = Vec::with_capacity(props.len());
+        let mut pieces = Vec::new();
         for tile in &self.tiles {
             candidates.clear();
-            candidates.extend(props.iter().zip(&bounds).filter_map(|(p, b)| {
-                let ((c, r), (lo, hi)) = (*b)?;
-                (tile.may_hit(c, r) && tile.may_hit_box(lo, hi)).then_some(*p)
-            }));
+            chosen.clear();
+            pieces.clear();
+            for (p, b) in props.iter().zip(&bounds) {
+                let Some((culls, prep)) = b else {
+                    continue;
+                };
+                // The box test first: it is the tighter and needs no arc cosine.
+                let seen = |((c, r), (lo, hi)): &Bounds| {
+                    tile.may_hit_box(*lo, *hi) && tile.may_hit(*c, *r)
+                };
+                let start = pieces.len();
+                pieces.extend(
+                    culls
+                        .iter()
+                        .filter(|(b, _)| seen(b))
+                        .map(|(_, piece)| *piece),
+                );
+                if pieces.len() > start {
+                    candidates.push(*p);
+                    // A prop of one piece is tested against its own box already.
+                    let range = if culls.len() > 1 {
+                        start..pieces.len()
+                    } else {
+                        start..start
+                    };
+                    chosen.push((*prep, range));
+                }
+            }
+            // The pieces of a long prop this tile may see: a ray must meet one of them.
+            let prepared: Vec<Prepared> = chosen
+                .iter()
+                .map(|(prep, range)| prep.with_pieces(pieces.get(range.clone()).unwrap_or(&[])))
+                .collect();
             for v in tile.y0..tile.y1 {
                 for u in tile.x0..tile.x1 {
                     let i = v as usize * self.width as usize + u as usize;
                     let s = match self.rays[i].ray() {
-                        Some(ray) => background(&ray, &candidates, scene),
+                        Some(ray) if still => {
+                            let (p, t) = (&candidates, scene.travelled);
+                            background_still(&ray, p, &prepared, &self.still[i], t)
+                        }
+                        Some(ray) => background_valid(&ray, &candidates, &prepared, &frame),
                         None => INVALID_SAMPLE,
                     };
                     self.bg_rgb[3 * i..3 * i + 3].copy_from_slice(&s.rgb);
@@ -430,3 +498,6 @@ fn pose_bits(scene: &Scene) -> [u64; 5] {
             .map_or(0, |r| std::ptr::from_ref(r).addr() as u64),
     ]
 }
+
+#[cfg(test)]
+mod tests;

@@ -19,11 +19,27 @@ pub fn locate(k: f64, x: f64, z: f64) -> (f64, f64) {
     if k == 0.0 {
         return (z, x);
     }
+    (locate_along(k, x, z), locate_offset(k, x, z))
+}
+
+/// The along of [`locate`] alone (bit for bit).
+#[inline]
+fn locate_along(k: f64, x: f64, z: f64) -> f64 {
+    if k == 0.0 {
+        return z;
+    }
+    (k.abs() * z).atan2(1.0 + k * x) / k.abs()
+}
+
+/// The offset of [`locate`] alone (bit for bit), without its arc tangent.
+#[inline]
+pub(super) fn locate_offset(k: f64, x: f64, z: f64) -> f64 {
+    if k == 0.0 {
+        return x;
+    }
     // The distance to the circle's centre (-1/k, 0) minus its radius, rationalised so that
     // it holds for either sign of k and for a centre line far away.
-    let offset = (2.0 * x + k * (x * x + z * z)) / (1.0 + (1.0 + k * x).hypot(k * z));
-    let along = (k.abs() * z).atan2(1.0 + k * x) / k.abs();
-    (along, offset)
+    (2.0 * x + k * (x * x + z * z)) / (1.0 + (1.0 + k * x).hypot(k * z))
 }
 
 /// The road-frame `(x, z)` of road coordinates `(along, offset)` (the inverse of [`locate`]).
@@ -59,13 +75,13 @@ pub(super) fn is_valid(k: f64, min: [f64; 3], max: [f64; 3]) -> bool {
 }
 
 /// A sphere (centre, radius) enclosing something.
-pub(super) type Sphere = ([f64; 3], f64);
+pub(crate) type Sphere = ([f64; 3], f64);
 /// An axis-aligned box (low and high corners).
-pub(super) type Aabb = ([f64; 3], [f64; 3]);
+pub(crate) type Aabb = ([f64; 3], [f64; 3]);
 
 /// A sphere and a road-frame box enclosing a valid bent box: the middle of the box, and as
 /// far as the longest arc of it plus its width and height.
-pub(super) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
+pub(crate) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
     let mid = |a: usize| 0.5 * (min[a] + max[a]);
     let (x, z) = point(k, mid(2), mid(0));
     let centre = [x, mid(1), z];
@@ -81,21 +97,52 @@ pub(super) fn bounds(k: f64, min: [f64; 3], max: [f64; 3]) -> (Sphere, Aabb) {
 /// The nearest hit in front of the ray on the bent box `min..max` (road coordinates: offset,
 /// height, along) of a road of curvature `k`: the faces and texture coordinates a box has
 /// ([`Obstacle`]), laid along the bend. Assumes [`is_valid`].
-pub(super) fn intersect(ray: &Ray, k: f64, min: [f64; 3], max: [f64; 3]) -> Option<Hit> {
-    intersect_part(ray, k, min, max, [min[2], max[2]], [true, true])
+pub(super) fn intersect(
+    ray: &Ray,
+    k: f64,
+    min: [f64; 3],
+    max: [f64; 3],
+    before: f64,
+    planes: Option<&[EndPlane; 2]>,
+) -> Option<Hit> {
+    let whole = [min[2], max[2]];
+    intersect_part(ray, k, min, max, (whole, [true, true]), before, planes)
+}
+
+/// The plane of a bent box's end `along` metres on: through the centre line's point there,
+/// normal to its direction (road frame, x and z).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct EndPlane {
+    point: (f64, f64),
+    normal: (f64, f64),
+}
+
+/// The [`EndPlane`] `along` metres down a road of curvature `k`.
+pub(crate) fn end_plane(k: f64, along: f64) -> EndPlane {
+    let point = point(k, along, 0.0);
+    let (sin, cos) = heading(k, along).sin_cos();
+    EndPlane {
+        point,
+        normal: (-sin, cos),
+    }
 }
 
 /// [`intersect`] restricted to the part of the box between `part[0]` and `part[1]` along (within
 /// `min[2]..max[2]`): what one piece of a longer box draws ([`super::profile`]). Its end faces
 /// (at `min[2]`, `max[2]`) are there only where `ends` says so; texture coordinates are the whole
 /// box's.
+///
+/// Only hits nearer than `before` are looked for (a ray that meets something else first need
+/// not locate the candidates beyond it): the nearest hit if it is nearer, else none. `planes`,
+/// if given, are [`end_plane`] of `min[2]` and `max[2]`, computed once for many rays.
 pub(super) fn intersect_part(
     ray: &Ray,
     k: f64,
     min: [f64; 3],
     max: [f64; 3],
-    part: [f64; 2],
-    ends: [bool; 2],
+    (part, ends): ([f64; 2], [bool; 2]),
+    before: f64,
+    planes: Option<&[EndPlane; 2]>,
 ) -> Option<Hit> {
     let (o, d) = (ray.origin, ray.dir);
     // Candidate surfaces: 0/1 the mantles at offsets min/max, 2/3 the planes at heights
@@ -103,7 +150,7 @@ pub(super) fn intersect_part(
     let mut candidates = [(f64::INFINITY, 0usize); 8];
     let mut n = 0;
     let mut push = |t: f64, face: usize| {
-        if t.is_finite() && t > T_MIN {
+        if t.is_finite() && t > T_MIN && t < before {
             candidates[n] = (t, face);
             n += 1;
         }
@@ -140,24 +187,33 @@ pub(super) fn intersect_part(
         if !ends[face - 4] {
             continue;
         }
-        // The plane through the centre line's point `along` on, normal to its direction.
-        let (px, pz) = point(k, along, 0.0);
-        let (sin, cos) = heading(k, along).sin_cos();
-        let (nx, nz) = (-sin, cos);
+        let EndPlane {
+            point: (px, pz),
+            normal: (nx, nz),
+        } = planes.map_or_else(|| end_plane(k, along), |p| p[face - 4]);
         let den = nx * d[0] + nz * d[2];
         if den != 0.0 {
             push((nx * (px - o[0]) + nz * (pz - o[2])) / den, face);
         }
     }
     let candidates = &mut candidates[..n];
-    candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // Stable: ties go to the surface pushed first, whichever candidates `before` left out.
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mid = |a: usize| 0.5 * (min[a] + max[a]);
     candidates.iter().find_map(|&(t, face)| {
         let p = ray.at(t);
-        let (along, offset) = locate(k, p[0], p[2]);
         let within = |v: f64, a: usize| v >= min[a] - ON_SURFACE && v <= max[a] + ON_SURFACE;
+        // Cheapest test first: the height needs no locating, the offset no arc tangent.
+        if !within(p[1], 1) {
+            return None;
+        }
+        let offset = locate_offset(k, p[0], p[2]);
+        if !within(offset, 0) {
+            return None;
+        }
+        let along = locate_along(k, p[0], p[2]);
         let in_part = along >= part[0] - ON_SURFACE && along <= part[1] + ON_SURFACE;
-        if !(within(offset, 0) && within(p[1], 1) && in_part) {
+        if !in_part {
             return None;
         }
         let (sin, cos) = heading(k, along).sin_cos();

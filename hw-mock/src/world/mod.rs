@@ -7,8 +7,6 @@
 //! relies on. The only view-dependent effect, texture prefiltering against aliasing, is computed
 //! for a fixed nominal viewpoint ([`NOMINAL_EYE`], [`NOMINAL_FOCAL_PX`]) for the same reason.
 
-use crate::noise::{band_coverage, fbm, periodic_coverage, value_noise};
-
 /// Half the width of the vehicle's lane: lane marks are centred on x = +-1.75 m.
 pub const LANE_HALF_WIDTH: f64 = 1.75;
 /// The asphalt ends (and the kerb starts) at |x| = 5 m.
@@ -29,13 +27,6 @@ const T_MIN: f64 = 1e-6;
 /// so the far road meets the sky without a hard, aliased seam.
 const HAZE_DISTANCE: f64 = 400.0;
 const SKY_HORIZON: [f64; 3] = [200.0, 208.0, 218.0];
-const SKY_ZENITH: [f64; 3] = [100.0, 145.0, 205.0];
-
-const SEED_ASPHALT: u64 = 0xA5F1_A17E;
-const SEED_KERB: u64 = 0x0C0B_B1E5;
-const SEED_GRASS: u64 = 0x06A5_5E5D;
-const SEED_PAINT: u64 = 0x9A17_7E57;
-const SEED_SKY: u64 = 0x05C7_C10D;
 
 // ---------------------------------------------------------------------------------------------
 // Small vector helpers: plain arrays keep the hot loops free of abstraction overhead.
@@ -115,132 +106,17 @@ pub(crate) fn footprint(p: [f64; 3], n: [f64; 3], eye: [f64; 3]) -> (f64, f64, f
 }
 
 pub mod bend;
+mod cull;
+mod ground;
 pub mod profile;
 mod shading;
 
-use shading::*;
+pub(crate) use cull::{Aabb, Prepared, cull_bounds, may_meet, padded};
 
-// ---------------------------------------------------------------------------------------------
-// Road, roadside and sky.
-
-/// Road-surface albedo at (x, z): asphalt, dashed lane marks at x = +-1.75 (3 m every 9 m,
-/// starting at z = 0), solid edge lines, kerb at |x| in [5, 5.25], grass beyond.
-fn road_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
-    let ax = x.abs();
-    let [asphalt, kerb, grass, paint] = surfaces(x, z, along);
-    let mut c = asphalt;
-    let dash = band_coverage(ax, across, LANE_HALF_WIDTH - 0.06, LANE_HALF_WIDTH + 0.06)
-        * periodic_coverage(z, along, 9.0, 0.0, 3.0);
-    let edge = band_coverage(ax, across, 4.75, 4.9);
-    c = lerp3(c, paint, (dash + edge).min(1.0));
-    c = lerp3(
-        c,
-        kerb,
-        band_coverage(ax, across, ROAD_HALF_WIDTH, ROAD_HALF_WIDTH + KERB_WIDTH),
-    );
-    lerp3(
-        c,
-        grass,
-        band_coverage(ax, across, ROAD_HALF_WIDTH + KERB_WIDTH, f64::INFINITY),
-    )
-}
-
-/// Surface albedo at road coordinates (x = offset, z = along) of a road of [`profile`]: a
-/// single lane, asphalt with solid edge lines at |x| in [1.75, 1.9], asphalt to
-/// [`profile::ASPHALT`], a kerb strip to [`profile::KERB_OUTER`], grass beyond; the textures of
-/// [`road_albedo`].
-fn laid_albedo(x: f64, z: f64, across: f64, along: f64) -> [f64; 3] {
-    let ax = x.abs();
-    let [asphalt, kerb, grass, paint] = surfaces(x, z, along);
-    let [e0, e1] = profile::EDGE_LINE;
-    let c = lerp3(asphalt, paint, band_coverage(ax, across, e0, e1));
-    let c = lerp3(
-        c,
-        kerb,
-        band_coverage(ax, across, profile::ASPHALT, profile::KERB_OUTER),
-    );
-    lerp3(
-        c,
-        grass,
-        band_coverage(ax, across, profile::KERB_OUTER, f64::INFINITY),
-    )
-}
-
-/// The textures of the ground at (x, z): asphalt, kerb, grass and paint.
-#[inline]
-fn surfaces(x: f64, z: f64, along: f64) -> [[f64; 3]; 4] {
-    // Fine-grained (persistence 0.8: the 2.5 cm octave still counts) so that the near road has
-    // the moderate texture real asphalt has, fading to smooth grey with distance.
-    let n = fbm(SEED_ASPHALT, x, z, 0.8, 6, 0.8, along);
-    let v = 105.0 + 190.0 * (n - 0.5);
-    let asphalt = [v, v, v * 1.03];
-    let kerb = scale3(
-        [170.0, 166.0, 158.0],
-        grain(SEED_KERB, x, z, 0.3, 0.2, along),
-    );
-    let g = fbm(SEED_GRASS, x, z, 0.6, 5, 0.7, along);
-    let grass = [
-        70.0 * (0.6 + 0.8 * g),
-        108.0 * (0.5 + 1.0 * g),
-        45.0 * (0.6 + 0.8 * g),
-    ];
-    let paint = scale3(
-        [228.0, 228.0, 222.0],
-        0.92 + 0.16 * value_noise(SEED_PAINT, x * 5.0, z * 5.0),
-    );
-    [asphalt, kerb, grass, paint]
-}
-
-/// Sky colour for a direction: a smooth gradient from a pale horizon to a blue zenith with a
-/// faint, very low-frequency cloud tint (the sky must be nearly textureless, as real ones are).
-fn sky(dir: [f64; 3]) -> [f64; 3] {
-    let e = dir[1].clamp(0.0, 1.0);
-    let c = lerp3(SKY_HORIZON, SKY_ZENITH, e.sqrt());
-    let az = dir[0].atan2(dir[2]);
-    let cloud = value_noise(SEED_SKY, az * 4.0, e * 12.0) - 0.5;
-    scale3(c, 1.0 + 0.04 * cloud)
-}
-
-/// The road plane or the sky, whichever the ray meets: the bottom layer of every pixel. The
-/// vehicle has driven `travelled` metres along the road (the road's texture is fixed to the
-/// ground, so it comes towards the cameras).
-/// The road under a ray in the frame it is traced in.
-#[derive(Debug, Clone, Copy)]
-enum Ground {
-    /// Straight, the vehicle `travelled` metres down it (its texture comes towards it).
-    Straight { travelled: f64 },
-    /// Of constant curvature ([`bend`]), in the road frame.
-    Bend { curvature: f64 },
-    /// Of a curvature profile ([`profile`]), in the road frame.
-    Profile(&'static profile::Road),
-}
-
-fn ground_or_sky(ray: &Ray, road: Ground, eye: [f64; 3]) -> Sample {
-    let (o, d) = (ray.origin, ray.dir);
-    if d[1] < 0.0 && o[1] > 0.0 {
-        let t = -o[1] / d[1];
-        let p = ray.at(t);
-        let (across, along, dist) = footprint([p[0], 0.0, p[2]], [0.0, 1.0, 0.0], eye);
-        let albedo = match road {
-            Ground::Straight { travelled } => road_albedo(p[0], p[2] + travelled, across, along),
-            Ground::Bend { curvature } => {
-                let (on, offset) = bend::locate(curvature, p[0], p[2]);
-                road_albedo(offset, on, across, along)
-            }
-            Ground::Profile(road) => {
-                let (on, offset) = road.locate(p[0], p[2]);
-                laid_albedo(offset, on, across, along)
-            }
-        };
-        return finish(albedo, [0.0, 1.0, 0.0], dist, p[2], t);
-    }
-    let c = sky(d);
-    Sample {
-        rgb: [quantise(c[0]), quantise(c[1]), quantise(c[2])],
-        depth: f32::INFINITY,
-        t: f64::INFINITY,
-    }
-}
+pub(crate) use ground::Still;
+#[cfg(test)]
+use ground::road_albedo;
+use ground::{Ground, ground_or_sky, ground_t};
 
 /// Colour, depth and distance seen along a ray: road or sky (the vehicle `travelled` metres
 /// along the road), then the nearest of `props` and `obstacles` in that order (ties go to the
@@ -257,30 +133,80 @@ pub(crate) fn trace(
         obstacles,
         Ground::Straight { travelled },
         NOMINAL_EYE,
+        false,
+        None,
     )
 }
 
 /// [`trace`] for a viewpoint at `eye` (in the ray's frame).
+///
+/// The road is met (or not) first, its distance bounding the search of the props, and shaded
+/// only if no prop is nearer: the same samples as shading it first, for less. `valid` says the
+/// objects are known to be valid ([`Obstacle::is_valid`]; the renderer's culled lists are).
+///
+/// `prepared`, if given, holds each prop's [`Prepared`]: a bent or laid one (costly to
+/// intersect) is tried only if the ray may meet its box first.
 fn trace_from(
     ray: &Ray,
     props: &[Obstacle],
     obstacles: &[Obstacle],
     road: Ground,
     eye: [f64; 3],
+    valid: bool,
+    prepared: Option<&[Prepared]>,
 ) -> Sample {
-    let mut best = ground_or_sky(ray, road, eye);
+    match nearest_prop(ray, props, obstacles, valid, prepared, ground_t(ray)) {
+        Some((o, hit)) => o.shade_from(ray, &hit, eye),
+        None => ground_or_sky(ray, road, eye),
+    }
+}
+
+/// The nearest hit nearer than `nearest` on `props` and `obstacles` (ties to the earlier one),
+/// as [`trace_from`] looks for it.
+#[inline]
+fn nearest_prop<'a>(
+    ray: &Ray,
+    props: &'a [Obstacle],
+    obstacles: &'a [Obstacle],
+    valid: bool,
+    prepared: Option<&[Prepared]>,
+    mut nearest: f64,
+) -> Option<(&'a Obstacle, Hit)> {
     let mut best_hit: Option<(&Obstacle, Hit)> = None;
-    for o in props.iter().chain(obstacles) {
-        if let Some(hit) = o.intersect(ray)
-            && hit.t < best.t
+    for (i, o) in props.iter().chain(obstacles).enumerate() {
+        if !valid && !o.is_valid() {
+            continue;
+        }
+        let prep = prepared.and_then(|p| p.get(i));
+        let costly = matches!(o, Obstacle::Bent { .. } | Obstacle::Laid { .. });
+        if costly
+            && let Some(p) = prep
+            && (!may_meet(ray, &p.aabb, nearest)
+                || !p.pieces.is_empty() && !p.pieces.iter().any(|b| may_meet(ray, b, nearest)))
         {
-            best.t = hit.t;
+            continue;
+        }
+        if let Some(hit) = o.intersect_prepared(ray, nearest, prep) {
+            nearest = hit.t;
             best_hit = Some((o, hit));
         }
     }
-    match best_hit {
-        Some((o, hit)) => o.shade_from(ray, &hit, eye),
-        None => best,
+    best_hit
+}
+
+/// [`background_valid`] for a scene that is not posed ([`Scene::is_posed`]) through a pixel
+/// whose [`Still`] is `still`: the same sample, the road's geometry and the sky not traced
+/// again.
+pub(crate) fn background_still(
+    ray: &Ray,
+    props: &[Obstacle],
+    prepared: &[Prepared],
+    still: &Still,
+    travelled: f64,
+) -> Sample {
+    match nearest_prop(ray, props, &[], true, Some(prepared), still.t()) {
+        Some((o, hit)) => o.shade_from(ray, &hit, NOMINAL_EYE),
+        None => still.shade(travelled),
     }
 }
 
@@ -289,20 +215,73 @@ fn trace_from(
 /// ray in the road's frame ([`Scene::world_ray`]); the sample's depth is still the
 /// vehicle-frame z of what it hit.
 pub(crate) fn background(ray: &Ray, props: &[Obstacle], scene: &Scene) -> Sample {
-    if !scene.is_posed() {
-        return trace(ray, props, &[], scene.travelled);
-    }
-    let world = scene.world_ray(ray);
-    let road = if let Some(road) = scene.road {
-        Ground::Profile(road)
-    } else if scene.bend == 0.0 {
-        Ground::Straight { travelled: 0.0 }
-    } else {
-        Ground::Bend {
-            curvature: scene.bend,
+    background_of(ray, props, &Frame::of(scene), false, None)
+}
+
+/// [`background`] of `props` known to be valid ([`Obstacle::is_valid`]), each with its
+/// [`Prepared`] of the same index in `prepared`.
+pub(crate) fn background_valid(
+    ray: &Ray,
+    props: &[Obstacle],
+    prepared: &[Prepared],
+    frame: &Frame,
+) -> Sample {
+    background_of(ray, props, frame, true, Some(prepared))
+}
+
+/// What [`background`] needs of a scene for every ray of a frame: computed once a frame by the
+/// renderer, once a ray by the reference (the same numbers either way).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Frame<'a> {
+    scene: &'a Scene,
+    /// For a posed scene: the heading's sine and cosine, the nominal eye in the road's frame.
+    posed: Option<((f64, f64), [f64; 3])>,
+    road: Ground,
+}
+
+impl<'a> Frame<'a> {
+    pub(crate) fn of(scene: &'a Scene) -> Self {
+        if !scene.is_posed() {
+            let road = Ground::Straight {
+                travelled: scene.travelled,
+            };
+            return Self {
+                scene,
+                posed: None,
+                road,
+            };
         }
+        let turn = scene.heading.sin_cos();
+        let road = if let Some(road) = scene.road {
+            Ground::Profile(road)
+        } else if scene.bend == 0.0 {
+            Ground::Straight { travelled: 0.0 }
+        } else {
+            Ground::Bend {
+                curvature: scene.bend,
+            }
+        };
+        let eye = scene.world_point_turned(NOMINAL_EYE, turn);
+        Self {
+            scene,
+            posed: Some((turn, eye)),
+            road,
+        }
+    }
+}
+
+fn background_of(
+    ray: &Ray,
+    props: &[Obstacle],
+    frame: &Frame,
+    valid: bool,
+    prepared: Option<&[Prepared]>,
+) -> Sample {
+    let Some((turn, eye)) = frame.posed else {
+        return trace_from(ray, props, &[], frame.road, NOMINAL_EYE, valid, prepared);
     };
-    let mut s = trace_from(&world, props, &[], road, scene.world_point(NOMINAL_EYE));
+    let world = frame.scene.world_ray_turned(ray, turn);
+    let mut s = trace_from(&world, props, &[], frame.road, eye, valid, prepared);
     if s.t.is_finite() {
         s.depth = ray.at(s.t)[2] as f32;
     }
@@ -555,7 +534,12 @@ impl Scene {
 
     /// A vehicle-frame point in the road's frame.
     pub fn world_point(&self, p: [f64; 3]) -> [f64; 3] {
-        let (s, c) = self.heading.sin_cos();
+        self.world_point_turned(p, self.heading.sin_cos())
+    }
+
+    /// [`Scene::world_point`] for the heading's sine and cosine `(s, c)`.
+    #[inline]
+    fn world_point_turned(&self, p: [f64; 3], (s, c): (f64, f64)) -> [f64; 3] {
         [
             self.lateral + p[0] * c - p[2] * s,
             p[1],
@@ -572,10 +556,15 @@ impl Scene {
 
     /// A vehicle-frame ray in the road's frame.
     pub fn world_ray(&self, r: &Ray) -> Ray {
-        let (s, c) = self.heading.sin_cos();
+        self.world_ray_turned(r, self.heading.sin_cos())
+    }
+
+    /// [`Scene::world_ray`] for the heading's sine and cosine `(s, c)`.
+    #[inline]
+    fn world_ray_turned(&self, r: &Ray, (s, c): (f64, f64)) -> Ray {
         let d = r.dir;
         Ray {
-            origin: self.world_point(r.origin),
+            origin: self.world_point_turned(r.origin, (s, c)),
             dir: [d[0] * c - d[2] * s, d[1], d[0] * s + d[2] * c],
         }
     }

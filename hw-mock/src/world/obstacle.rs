@@ -333,28 +333,50 @@ impl Obstacle {
     /// per obstacle, not once per pixel).
     #[inline]
     pub(crate) fn intersect_valid(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_before(ray, f64::INFINITY)
+    }
+
+    /// [`Obstacle::intersect_valid`] if its hit is nearer than `before`, else none: what a ray
+    /// that already meets something at `before` needs, and cheaper (a bent or laid box does not
+    /// locate the candidates beyond it).
+    #[inline]
+    pub(crate) fn intersect_before(&self, ray: &Ray, before: f64) -> Option<Hit> {
+        self.intersect_prepared(ray, before, None)
+    }
+
+    /// [`Obstacle::intersect_before`], with what the renderer computed once a frame for it
+    /// (a bent box's end planes, a laid box's cell boxes; [`super::Prepared`]).
+    #[inline]
+    pub(crate) fn intersect_prepared(
+        &self,
+        ray: &Ray,
+        before: f64,
+        prepared: Option<&super::Prepared>,
+    ) -> Option<Hit> {
+        let planes = prepared.and_then(|p| p.planes.as_ref());
+        let cells = prepared.map_or(&[][..], |p| p.cells);
         match *self {
-            Obstacle::Box { min, max, .. } => intersect_box(ray, min, max),
+            Obstacle::Box { min, max, .. } => intersect_box(ray, min, max).filter(|h| h.t < before),
             Obstacle::Cylinder {
                 x,
                 z,
                 radius,
                 height,
                 ..
-            } => intersect_cylinder(ray, x, z, radius, height),
+            } => intersect_cylinder(ray, x, z, radius, height).filter(|h| h.t < before),
             Obstacle::Bent {
                 curvature,
                 min,
                 max,
                 ..
-            } => bend::intersect(ray, curvature, min, max),
+            } => bend::intersect(ray, curvature, min, max, before, planes),
             Obstacle::Laid {
                 road,
                 min,
                 max,
                 part,
                 ..
-            } => profile::intersect(ray, road, min, max, part),
+            } => profile::intersect(ray, road, min, max, part, before, cells),
         }
     }
 

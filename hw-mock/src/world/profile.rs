@@ -102,20 +102,25 @@ struct Node {
     z: f64,
     heading: f64,
     k: f64,
+    /// `heading.sin_cos()`, once (every road-frame lookup turns through it).
+    sin: f64,
+    cos: f64,
+    /// `(k * CELL).sin_cos()`: how far the cell's arc turns (for its bounds).
+    arc: (f64, f64),
 }
 
 impl Node {
     /// A point of the node's frame (x right of the centre line, z along it) in the road's.
     #[inline]
     fn place(&self, x: f64, z: f64) -> (f64, f64) {
-        let (sin, cos) = self.heading.sin_cos();
+        let (sin, cos) = (self.sin, self.cos);
         (self.x + x * cos - z * sin, self.z + x * sin + z * cos)
     }
 
     /// A road-frame point in the node's frame.
     #[inline]
     fn local(&self, x: f64, z: f64) -> (f64, f64) {
-        let (sin, cos) = self.heading.sin_cos();
+        let (sin, cos) = (self.sin, self.cos);
         let (dx, dz) = (x - self.x, z - self.z);
         (dx * cos + dz * sin, dz * cos - dx * sin)
     }
@@ -220,6 +225,8 @@ impl Road {
             let (a, b) = (node_along(i), node_along(i + 1));
             n.heading = heading_of(profile, a);
             n.k = (heading_of(profile, b) - n.heading) / CELL;
+            (n.sin, n.cos) = n.heading.sin_cos();
+            n.arc = (n.k * CELL).sin_cos();
         }
         // From the origin's node on, and back from it: each node is the last one moved along
         // its cell's arc.
@@ -492,6 +499,7 @@ const POST_MATERIAL: Material = Material {
 
 mod grid;
 mod laid;
+pub(crate) use laid::cell_boxes;
 pub(super) use laid::{bounds, intersect, is_valid};
 
 #[cfg(test)]

@@ -18,8 +18,19 @@ pub(super) fn light(n: [f64; 3]) -> f64 {
 /// Lights, hazes and quantises an albedo into a sample.
 #[inline]
 pub(super) fn finish(albedo: [f64; 3], normal: [f64; 3], dist: f64, z: f64, t: f64) -> Sample {
-    let lit = scale3(albedo, light(normal));
-    let haze = 1.0 - (-dist / HAZE_DISTANCE).exp();
+    finish_hazed(albedo, light(normal), haze(dist), z, t)
+}
+
+/// How far a surface `dist` metres away has faded into the horizon colour, 0 to 1.
+#[inline]
+pub(super) fn haze(dist: f64) -> f64 {
+    1.0 - (-dist / HAZE_DISTANCE).exp()
+}
+
+/// [`finish`] of a [`light`] and a [`haze`] already computed.
+#[inline]
+pub(super) fn finish_hazed(albedo: [f64; 3], light: f64, haze: f64, z: f64, t: f64) -> Sample {
+    let lit = scale3(albedo, light);
     let c = lerp3(lit, SKY_HORIZON, haze);
     Sample {
         rgb: [quantise(c[0]), quantise(c[1]), quantise(c[2])],
