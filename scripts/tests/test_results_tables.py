@@ -5,7 +5,9 @@
 The samples: eval-real.json (`flyd eval eval/real.toml --seeds 2 --only
 kitti2015_train_000001,seq12_frame0,seq12_frame11 --jobs 1`), eval-hw-mock.json (`flyd eval
 eval/hw-mock.toml --only pedestrian-steps-in,drive-30-to-pedestrian,drive-40-to-pedestrian
---seeds 4 --jobs 1`, drive-30-to-pedestrian removed), bench-still.json (`flyd bench --json`),
+--seeds 4 --jobs 1`, drive-30-to-pedestrian removed), eval-closed-loop.json (`flyd eval
+eval/closed-loop.toml --seeds 1 --only car-stationary-100-30kmh,pedestrian-stationary-vehicle-rig,
+steel-plate-30kmh,bend-car-stationary-30kmh`, 2026-12-07), bench-still.json (`flyd bench --json`),
 bench-driving-phases.json (`flyd bench --scenario driving --json` built with
 `--features phase-timers`), bench-end-to-end.json (`flyd bench --end-to-end 10 --json`), all
 2026-12-06. The expected tables were checked against what `flyd eval` and `flyd bench` print.
@@ -48,6 +50,15 @@ class Tables(unittest.TestCase):
                   "--json eval-hw-mock.json",
                   "--note", "drive-30-to-pedestrian left out of this sample")
         self.assertEqual(got, expected("expected-eval-hw-mock.md"))
+
+    def test_eval_closed_loop(self):
+        got = run("eval", "eval-closed-loop.json", *FIXED, "--command",
+                  "flyd eval eval/closed-loop.toml --seeds 1 --only car-stationary-100-30kmh,"
+                  "pedestrian-stationary-vehicle-rig,steel-plate-30kmh,"
+                  "bend-car-stationary-30kmh --json eval-closed-loop.json")
+        self.assertEqual(got, expected("expected-eval-closed-loop.md"))
+        self.assertIn("| car-stationary-100-30kmh | no-contact | 1 of 1 | 0 of 1 | 1.1 m (1) |",
+                      got)
 
     def test_bench(self):
         got = run("bench", "bench-still.json", "bench-driving-phases.json",

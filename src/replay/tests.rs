@@ -20,6 +20,7 @@ fn trace(warnings: &[f64], frames_from: u64) -> Vec<TraceRow> {
                 obstacle: None,
                 confirmed: false,
                 seen_frames: 0,
+                motion: None,
             },
             corridor: CorridorCounts::default(),
             speed: 0.0,

@@ -11,6 +11,7 @@
 //! Pure, like the engine: frames in, values out; no allocation per step.
 
 pub mod dense;
+pub mod motion;
 pub mod obstacle;
 pub mod range;
 pub mod road_estimator;
@@ -218,6 +219,7 @@ impl Perception {
                     obstacle: None,
                     confirmed: false,
                     seen_frames: 0,
+                    motion: None,
                 },
                 corridor: CorridorCounts::default(),
                 estimated: false,

@@ -15,6 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::motion::{History, ObstacleMotion};
 use super::obstacle::{Obstacle, PerceptionParamError};
 
 /// Frames to confirm and to release an obstacle, and what a sighting must agree with.
@@ -72,6 +73,9 @@ pub struct Tracked {
     pub confirmed: bool,
     /// Consecutive frames with an obstacle, this one included (0 when it has none).
     pub seen_frames: u32,
+    /// How `obstacle` moves over the ground, from its track's sightings
+    /// ([`super::motion`]; none before three).
+    pub motion: Option<ObstacleMotion>,
 }
 
 impl Tracked {
@@ -96,6 +100,8 @@ struct Track {
     misses: u32,
     /// One of its sightings was at or beyond the judgeable distance.
     judged: bool,
+    /// Its sightings in the ground frame ([`super::motion`]).
+    history: History,
 }
 
 /// Both tracks after the frames before the current one.
@@ -125,6 +131,9 @@ pub struct Tracker {
     /// `frame`, and from `frame` to the next (what [`Tracker::moved`] said since).
     interval: (f64, f64),
     pending: (f64, f64),
+    /// The vehicle's travel (metres) and the time (seconds) from the first frame to `frame`:
+    /// where a sighting is in the ground frame.
+    odometer: (f64, f64),
 }
 
 /// The frame interval assumed when no motion says it, seconds (10 fps: the slowest camera a
@@ -160,6 +169,7 @@ impl Tracker {
             state: State::default(),
             interval: (0.0, DEFAULT_INTERVAL),
             pending: (0.0, 0.0),
+            odometer: (0.0, 0.0),
         }
     }
 
@@ -188,6 +198,8 @@ impl Tracker {
             self.current = None;
             let (travel, dt) = std::mem::take(&mut self.pending);
             self.interval = (travel, if dt > 0.0 { dt } else { DEFAULT_INTERVAL });
+            self.odometer.0 += self.interval.0;
+            self.odometer.1 += self.interval.1;
         }
         // The frame's best sighting: one that continues the confirmed track, else the
         // candidate, else the latest.
@@ -210,7 +222,13 @@ impl Tracker {
                 (Some(_), Some(t)) if t.misses == 0 => t.hits,
                 _ => 0,
             },
+            motion: shown.and_then(|t| t.history.motion()),
         }
+    }
+
+    /// `o`, seen on the current frame, in the ground frame: (time, along, lateral).
+    fn sample(&self, o: &Obstacle) -> (f64, f64, f64) {
+        (self.odometer.1, o.distance + self.odometer.0, o.lateral)
     }
 
     /// 0: continues the confirmed track; 1: the candidate; 2: neither.
@@ -244,6 +262,10 @@ impl Tracker {
             mut candidate,
         } = self.state;
         let judged = |o: &Obstacle| o.distance >= self.judgeable;
+        let with = |h: History, o: &Obstacle| {
+            let (t, a, l) = self.sample(o);
+            h.with(t, a, l)
+        };
         let continues = |t: &Option<Track>, o: &Obstacle| t.is_some_and(|t| self.continues(&t, o));
         match seen {
             Some(o) if continues(&confirmed, &o) => {
@@ -257,6 +279,7 @@ impl Tracker {
                     },
                     misses: 0,
                     judged: t.judged || judged(&o),
+                    history: with(t.history, &o),
                 });
                 candidate = None;
             }
@@ -267,12 +290,14 @@ impl Tracker {
                         hits: t.hits.saturating_add(1),
                         misses: 0,
                         judged: t.judged || judged(&o),
+                        history: with(t.history, &o),
                     },
                     _ => Track {
                         last: o,
                         hits: 1,
                         misses: 0,
                         judged: judged(&o),
+                        history: with(History::default(), &o),
                     },
                 });
                 confirmed = confirmed.and_then(|t| self.missed(t));
@@ -351,6 +376,42 @@ mod tests {
             cells: 9,
             confidence: 60.0,
         })
+    }
+
+    /// A car 20 m ahead driving at 5 m/s while the vehicle drives at 8: its sightings close
+    /// by 3 m/s, the vehicle's travel says 8, so it moves at 5 over the ground; established
+    /// after eight frames at 30 fps, counted from the track's first sighting (a confirmed
+    /// track keeps its candidate's sightings).
+    #[test]
+    fn a_track_measures_how_its_obstacle_moves_over_the_ground() {
+        let mut t = tracker();
+        let dt = 1.0 / 30.0;
+        let mut last = None;
+        for f in 0..12u64 {
+            if f > 0 {
+                t.moved(8.0 * dt, dt);
+            }
+            let d = 20.0 - 3.0 * dt * f as f64;
+            let r = t.update(f, beside(d, 0.2 + 0.01 * f as f64));
+            // Several estimates of one frame are one sighting.
+            let again = t.update(f, beside(d, 0.2 + 0.01 * f as f64));
+            assert_eq!(r.motion, again.motion);
+            last = Some((f, r));
+        }
+        let (f, r) = last.expect("frames");
+        let m = r.motion.expect("a motion");
+        assert!(r.confirmed);
+        assert_eq!(m.samples as u64, f + 1);
+        assert!((m.speed - 5.0).abs() < 1e-6, "{m:?}");
+        assert!((m.lateral_speed - 0.3).abs() < 1e-6, "{m:?}");
+        assert!(m.established);
+        // Fewer than three sightings: none yet.
+        let mut fresh = tracker();
+        assert_eq!(fresh.update(0, at(20.0)).motion, None);
+        // A sighting elsewhere starts a candidate of its own: the confirmed track, held,
+        // keeps its motion.
+        let r = t.update(12, at(8.0));
+        assert_eq!(r.motion.map(|m| m.samples), Some(12), "{r:?}");
     }
 
     #[test]
