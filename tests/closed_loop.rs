@@ -35,6 +35,12 @@ fn a_vehicle_that_obeys_stops_short_of_a_stopped_car() {
     assert!(peak > 1.0 && peak <= 9.5, "{peak}");
     assert_eq!(run["end_kmh"], 0.0);
     assert_eq!(summary["speed_source"], "feed");
+    // The tracked car's measured motion is held to the truth: it stands still.
+    let checks = run["motion_by_sightings"]
+        .as_array()
+        .expect("motion checked");
+    assert!(checks.len() >= 8, "{checks:?}");
+    assert!(checks.iter().all(|c| c["truth"] == 0.0), "{checks:?}");
     // The run over time: a row a command, ending at a standstill ...
     let csv = std::fs::read_to_string(out.path().join("closed_loop.csv")).expect("csv");
     let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();

@@ -52,6 +52,9 @@ pub trait FrameFeed {
     /// The command decided at `time` on the frames' clock (every command, from the first):
     /// a feed whose vehicle obeys ([`super::closed_loop`]) acts on it; the others film on.
     fn obey(&mut self, _time: Duration, _decision: &Decision) {}
+    /// What the perception tracked at `time` (every generation): a feed that knows the truth
+    /// ([`super::closed_loop`]) compares how the tracked obstacle moves with how it really does.
+    fn tracked(&mut self, _time: Duration, _tracked: &flyd_core::perception::Tracked) {}
     /// Whether the feed has nothing more to show (a closed loop's vehicle touched an actor or
     /// stood still): the replay ends there.
     fn finished(&self) -> bool {

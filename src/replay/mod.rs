@@ -396,6 +396,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             decision_step.observe(snapshot);
         }
         let decision = decision_step.decide_taken(time, faults).map(|d| d.decision);
+        feed.tracked(time, &report.tracked);
         if let Some(d) = &decision {
             feed.obey(time, d);
         }

@@ -38,7 +38,8 @@ fn a_case_is_one_a_speed_and_overlap_places_the_actor_as_euro_ncap_does() {
     let want = 4.0 * fast.speed + fast.body.front;
     assert!((fast.actors[0].at - want).abs() < 1e-9);
     // Followed 1.5 s ahead at the vehicle's speed.
-    let followed = parse(&CAR.replace("at = 30.0", "gap_s = 1.5\nsame_speed = true")).expect("valid");
+    let followed =
+        parse(&CAR.replace("at = 30.0", "gap_s = 1.5\nsame_speed = true")).expect("valid");
     let f = &followed[1];
     assert!((f.actors[0].at - (1.5 * f.speed + f.body.front)).abs() < 1e-9);
     assert_eq!(f.actors[0].speed, f.speed);
@@ -88,17 +89,18 @@ fn actors_move_at_their_speed_along_and_across() {
         .expect("valid");
     assert_eq!(kerb[0].actors[0].place(2.0).1, -2.5);
     assert_eq!(kerb[0].actors[0].place(0.2).1, -3.0 + 0.2);
-    let braking = parse(&text.replace(
-        "cross_kmh = 3.6",
-        "brake_decel = 5.0\nbrake_at_s = 1.0",
-    ))
-    .expect("valid");
+    let braking = parse(&text.replace("cross_kmh = 3.6", "brake_decel = 5.0\nbrake_at_s = 1.0"))
+        .expect("valid");
     let b = braking[0].actors[0];
     assert_eq!(b.speed_at(0.5), 10.0);
     assert_eq!(b.speed_at(1.4), 8.0);
     assert_eq!(b.speed_at(9.0), 0.0);
     // 10 m in the first second, then 10^2 / (2 * 5) = 10 m to a stop.
-    assert!((b.place(9.0).0 - (30.0 + 20.0)).abs() < 1e-9, "{:?}", b.place(9.0));
+    assert!(
+        (b.place(9.0).0 - (30.0 + 20.0)).abs() < 1e-9,
+        "{:?}",
+        b.place(9.0)
+    );
     assert!((b.place(1.4).0 - (30.0 + 10.0 + 4.0 - 0.4)).abs() < 1e-9);
 }
 

@@ -56,6 +56,17 @@ pub struct LoopSample {
     pub command: Command,
 }
 
+/// A tracked obstacle's measured motion against the truth, at a count of sightings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct MotionCheck {
+    pub sightings: u32,
+    /// Its speed over the ground along the path, measured and true, m/s.
+    pub speed: f64,
+    pub truth: f64,
+    pub sigma: f64,
+    pub established: bool,
+}
+
 /// What a closed-loop run came to.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct ClosedLoopReport {
@@ -95,6 +106,12 @@ pub struct ClosedLoopReport {
     pub first_stop_s: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub first_stop_ttc_s: Option<f64>,
+    /// How the confirmed obstacle's measured speed over the ground ([`flyd_core::perception::motion`])
+    /// compares with the truth, by the sightings of its track: (sightings, estimate, truth,
+    /// standard error, established), the first generation with that many; only while the
+    /// track is the nearest actor in the vehicle's width (within 3 m of it).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub motion_by_sightings: Vec<MotionCheck>,
     /// When the system was armed (its perception's first decision), seconds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub armed_s: Option<f64>,
@@ -367,6 +384,30 @@ impl FrameFeed for ClosedLoopFeed {
             decel: s.decel,
             command: decision.command,
         });
+    }
+
+    fn tracked(&mut self, _time: Duration, tracked: &flyd_core::perception::Tracked) {
+        let (Some(o), Some(m)) = (tracked.confirmed(), tracked.motion) else {
+            return;
+        };
+        let s = self.vehicle.state();
+        let Some(gap) = self.case.nearest(s.along, s.time) else {
+            return;
+        };
+        // The same object: the tracked one within 3 m of the actor's near end.
+        if (o.distance - (gap.distance + self.case.body.front)).abs() > 3.0 {
+            return;
+        }
+        let checks = &mut self.report.motion_by_sightings;
+        if checks.iter().all(|c| c.sightings != m.samples) {
+            checks.push(MotionCheck {
+                sightings: m.samples,
+                speed: m.speed,
+                truth: gap.actor_speed,
+                sigma: m.speed_sigma,
+                established: m.established,
+            });
+        }
     }
 
     fn finished(&self) -> bool {

@@ -191,7 +191,11 @@ mod tests {
         let h = (0..60).fold(History::default(), |h, k| {
             let t = k as f64 / 30.0;
             // Standing for a second, then driving off at 5 m/s.
-            let a = if t < 1.0 { 20.0 } else { 20.0 + 5.0 * (t - 1.0) };
+            let a = if t < 1.0 {
+                20.0
+            } else {
+                20.0 + 5.0 * (t - 1.0)
+            };
             h.with(t, a, 0.0)
         });
         assert_eq!(h.len(), WINDOW);
