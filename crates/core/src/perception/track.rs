@@ -146,6 +146,9 @@ const LATERAL_SLACK: f64 = 1.0;
 /// [`DEPTH_SLACK_PX`] pixels of disparity.
 const DEPTH_SLACK: f64 = 0.5;
 const DEPTH_SLACK_PX: f64 = 2.0;
+/// A sighting's distance is uncertain by this much disparity, pixels ([`super::motion`]):
+/// the flies' sub-pixel matches, persisting from frame to frame.
+const DISPARITY_NOISE_PX: f64 = 0.25;
 
 impl Tracker {
     /// A tracker for a rig of `pixels_per_inverse_depth` = f B that judges obstacles from
@@ -226,6 +229,12 @@ impl Tracker {
         }
     }
 
+    /// How uncertain a sighting's depth is at `distance`: [`DISPARITY_NOISE_PX`] of
+    /// disparity there, metres.
+    fn depth_noise(&self, distance: f64) -> f64 {
+        DISPARITY_NOISE_PX * distance * distance / self.pixels_per_inverse_depth.max(1e-9)
+    }
+
     /// `o`, seen on the current frame, in the ground frame: (time, along, lateral).
     fn sample(&self, o: &Obstacle) -> (f64, f64, f64) {
         (self.odometer.1, o.distance + self.odometer.0, o.lateral)
@@ -264,7 +273,7 @@ impl Tracker {
         let judged = |o: &Obstacle| o.distance >= self.judgeable;
         let with = |h: History, o: &Obstacle| {
             let (t, a, l) = self.sample(o);
-            h.with(t, a, l)
+            h.with(t, a, l, self.depth_noise(o.distance))
         };
         let continues = |t: &Option<Track>, o: &Obstacle| t.is_some_and(|t| self.continues(&t, o));
         match seen {
