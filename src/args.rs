@@ -134,10 +134,13 @@ pub(crate) struct ReplayArgs {
     /// A closed-loop case file (docs/closed-loop.md): hw-mock's vehicle obeys the commands,
     /// its cameras rendered from where it really is; the summary says whether it stopped
     /// short, how hard it braked, and `--out` gets closed_loop.csv and closed_loop.svg.
+    /// Shipped: eval/closed-loop/stationary.toml, bend.toml, false-activation.toml (no
+    /// reason to brake) and traffic.toml (cars followed, braking, cutting in; pedestrians
+    /// crossing); given without --case-name, a file of several cases lists their names.
     #[arg(long, value_name = "FILE.toml", conflicts_with_all = ["scenario", "sequence", "left"])]
     pub(crate) case: Option<PathBuf>,
     /// With --case: which of the file's cases (as `flyd eval` names them, e.g.
-    /// `car-stationary-30kmh`; default: the file's only one).
+    /// `car-stationary-100-30kmh`; default: the file's only one).
     #[arg(long, value_name = "NAME", requires = "case")]
     pub(crate) case_name: Option<String>,
     /// Generations per frame (default: 3 for a scenario, 30 fps at ~10 ms a generation; for a
