@@ -18,7 +18,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use flyd_core::decision::{Command, CommandReason, Decision};
-use flyd_core::frame::{PixelFormat, StereoFrame};
+use flyd_core::frame::StereoFrame;
 use flyd_core::geometry::StereoRig;
 use flyd_core::kinematics::VehicleMotion;
 use hw_mock::closed_loop::Case;
@@ -307,10 +307,7 @@ impl FrameFeed for ClosedLoopFeed {
         }
         let index = u32::try_from(index).unwrap_or(u32::MAX);
         let (l, r) = self.mock.render_scene(&scene, index)?;
-        frame.left.prepare(PixelFormat::Rgb8, l)?;
-        frame.right.prepare(PixelFormat::Rgb8, r)?;
-        left.copy_from_slice(l);
-        Ok(())
+        super::feed::show_rendered(frame, left, l, r)
     }
 
     fn motion(&self, index: u64) -> Option<VehicleMotion> {
