@@ -178,7 +178,7 @@ impl FrameFeed for ScenarioFeed {
     ) -> Result<(), ReplayError> {
         let index = u32::try_from(index).unwrap_or(u32::MAX);
         let (l, r) = self.mock.frame(index)?;
-        show_rendered(frame, left, l, r)
+        super::show_rendered(frame, left, l, r)
     }
 
     fn first_obstacle(&self) -> Option<u64> {
@@ -197,20 +197,6 @@ impl FrameFeed for ScenarioFeed {
             yaw_rate: s.yaw_rate_at(f),
         })
     }
-}
-
-/// A rendered pair (RGB8, the rig's size) into `frame` (prepared) and `left` (the left
-/// image, for the overlay): what a hw-mock feed shows.
-pub(super) fn show_rendered(
-    frame: &mut StereoFrame,
-    left: &mut RgbImage,
-    l: &[u8],
-    r: &[u8],
-) -> Result<(), ReplayError> {
-    frame.left.prepare(PixelFormat::Rgb8, l)?;
-    frame.right.prepare(PixelFormat::Rgb8, r)?;
-    left.copy_from_slice(l);
-    Ok(())
 }
 
 /// Image files of a sequence folder, in name order.

@@ -51,7 +51,7 @@ use flyd_core::decision::{
     Command, CommandReason, DecisionConfig, DecisionConfigError, DecisionInput,
 };
 use flyd_core::engine::{Engine, EngineError, EngineParams, GenerationStats};
-use flyd_core::frame::{FrameError, PreparedImage, StereoFrame};
+use flyd_core::frame::{FrameError, PixelFormat, PreparedImage, StereoFrame};
 use flyd_core::frame_step::{FrameStep, NewPair, StepConfig};
 use flyd_core::perception::{
     CorridorCounts, Perception, PerceptionConfig, PerceptionError, RoadEstimate, Tracked,
@@ -580,6 +580,20 @@ impl ReplayRecording {
             }
         }
     }
+}
+
+/// A rendered pair (RGB8, the rig's size) into `frame` (prepared) and `left` (the left
+/// image, for the overlay): what a hw-mock feed shows.
+fn show_rendered(
+    frame: &mut StereoFrame,
+    left: &mut RgbImage,
+    l: &[u8],
+    r: &[u8],
+) -> Result<(), ReplayError> {
+    frame.left.prepare(PixelFormat::Rgb8, l)?;
+    frame.right.prepare(PixelFormat::Rgb8, r)?;
+    left.copy_from_slice(l);
+    Ok(())
 }
 
 /// Every fly's ambiguity on `frame`, the engine's latest.

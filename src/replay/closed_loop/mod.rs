@@ -307,7 +307,7 @@ impl FrameFeed for ClosedLoopFeed {
         }
         let index = u32::try_from(index).unwrap_or(u32::MAX);
         let (l, r) = self.mock.render_scene(&scene, index)?;
-        super::feed::show_rendered(frame, left, l, r)
+        super::show_rendered(frame, left, l, r)
     }
 
     fn motion(&self, index: u64) -> Option<VehicleMotion> {
