@@ -34,6 +34,7 @@ const KEYS: &[(&str, &str, f64)] = &[
     ("decision", "max_decel", 9.0),
     ("decision", "reaction_time_ms", 500.0),
     ("decision", "margin_m", 2.0),
+    ("decision", "lead_decel", 3.0),
     ("vehicle", "assumed_speed_kmh", 30.0),
     ("evolution", "generation_period_ms", 10.0),
     ("evolution", "burst_generations", 12.0),

@@ -46,6 +46,10 @@ fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {
     assert_consecutive(&counters(&frames, status_counter), "status");
     assert_consecutive(&counters(&frames, obstacle_counter), "obstacle");
     assert_consecutive(&counters(&frames, path_counter), "path");
+    assert_consecutive(
+        &counters(&frames, obstacle_motion_counter),
+        "obstacle motion",
+    );
     // Without the vehicle's motion the corridor is the straight box, and FLYD_Path says so.
     let paths: Vec<PathMsg> = frames
         .iter()
@@ -94,6 +98,15 @@ fn pedestrian_leads_to_stop_frames_with_valid_counters_and_crcs() {
         .collect();
     let last = obstacles.last().expect("obstacle frames");
     assert!(last.valid, "{obstacles:?}");
+    // FLYD_ObstacleMotion with it: the panel stands still, so nothing is credited to it and
+    // the vehicle closes in at the speed the decision takes.
+    let motions = obstacle_motions(&frames[stop_at..]);
+    let motion = motions.last().expect("obstacle motion frames");
+    assert!(motion.obstacle_valid, "{motions:?}");
+    assert!(
+        motion.speed.abs() < 1.0 && motion.closing_speed >= 0.0,
+        "{motion:?}"
+    );
     assert!(
         (last.distance - OBSTACLE_Z).abs() < 0.5 && last.lateral.abs() < 0.6,
         "{last:?}"

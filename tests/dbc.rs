@@ -14,7 +14,8 @@ use can_dbc::{AttributeValue, ByteOrder, Dbc, Message, Signal};
 use dbc_signals::{raw_value, value_table};
 use flyd_core::can::crc::e2e_crc;
 use flyd_core::can::messages::{
-    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, PathMsg, StatusMsg,
+    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMotionMsg, ObstacleMsg, PathMsg,
+    StatusMsg,
 };
 use flyd_core::can::{CanConfig, MessageConfig};
 use flyd_core::decision::{Command, CommandReason};
@@ -178,6 +179,32 @@ fn path_case(msg: PathMsg, c: u8) -> Case {
     case(&msg, c, signals)
 }
 
+fn obstacle_motion_case(msg: ObstacleMotionMsg, c: u8) -> Case {
+    let valid = if msg.obstacle_valid {
+        "VALID"
+    } else {
+        "NO_OBSTACLE"
+    };
+    let motion = if msg.motion_valid {
+        "ESTABLISHED"
+    } else {
+        "TAKEN_AS_STILL"
+    };
+    let ttc = if msg.time_to_collision >= flyd_core::can::messages::NOT_CLOSING {
+        Want::Named("NOT_CLOSING")
+    } else {
+        Want::Phys(msg.time_to_collision)
+    };
+    let signals = vec![
+        ("ObstacleValid", Want::Named(valid)),
+        ("MotionValid", Want::Named(motion)),
+        ("ClosingSpeed", Want::Phys(msg.closing_speed)),
+        ("TimeToCollision", ttc),
+        ("Speed", Want::Phys(msg.speed)),
+    ];
+    case(&msg, c, signals)
+}
+
 fn motion_case(msg: MotionMsg, c: u8) -> Case {
     let valid = if msg.valid { "VALID" } else { "INVALID" };
     let signals = vec![
@@ -300,6 +327,27 @@ fn cases() -> Vec<Case> {
             11,
         ),
         path_case(PathMsg::NONE, 0),
+        obstacle_motion_case(
+            ObstacleMotionMsg {
+                obstacle_valid: true,
+                motion_valid: true,
+                closing_speed: 1.25,
+                time_to_collision: 11.2,
+                speed: 12.64,
+            },
+            6,
+        ),
+        obstacle_motion_case(
+            ObstacleMotionMsg {
+                obstacle_valid: true,
+                motion_valid: false,
+                closing_speed: -327.68,
+                time_to_collision: flyd_core::can::messages::NOT_CLOSING,
+                speed: 327.67,
+            },
+            13,
+        ),
+        obstacle_motion_case(ObstacleMotionMsg::NONE, 2),
         motion_case(
             MotionMsg {
                 valid: true,
@@ -401,7 +449,7 @@ fn encoder_writes_every_signal_where_the_dbc_says() {
 #[test]
 fn dbc_frames_are_well_formed() {
     let dbc = load();
-    assert_eq!(dbc.messages.len(), 5);
+    assert_eq!(dbc.messages.len(), 6);
     for msg in &dbc.messages {
         assert_eq!(msg.size, 8, "{}", msg.name);
         assert!(
@@ -480,6 +528,7 @@ fn ids_data_ids_and_cycle_times_match_the_rust_defaults() {
     check::<StatusMsg>(&dbc, cfg.status);
     check::<ObstacleMsg>(&dbc, cfg.obstacle);
     check::<PathMsg>(&dbc, cfg.path);
+    check::<ObstacleMotionMsg>(&dbc, cfg.obstacle_motion);
     check::<MotionMsg>(&dbc, cfg.motion);
 }
 
@@ -702,4 +751,85 @@ fn a_motion_frame_built_from_the_dbc_decodes() {
         .receive(&build(&speed, 1), ms(20))
         .expect("accepted");
     assert_eq!(monitor.decision_speed(ms(25), 20.0), 8.0);
+}
+
+/// A third-party reader decodes every case's frame as the case says: cantools (PyPI, from
+/// target/py: scripts/prereqs) loads `config/flyd.dbc` and decodes the frames the Rust
+/// encoder wrote, physical values and value-table names.
+#[test]
+fn cantools_decodes_the_frames_the_encoder_writes() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let py = std::env::var_os("FLYD_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root.join("target/py/bin/python3"));
+    let have = std::process::Command::new(&py)
+        .args(["-c", "import cantools"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !have {
+        if std::env::var_os("FLYD_ALLOW_NO_PY").is_some() {
+            println!("SKIP: cantools not in target/py: the frames are not decoded by it");
+            return;
+        }
+        panic!("cantools not found in target/py: run scripts/prereqs (or FLYD_ALLOW_NO_PY=1)");
+    }
+    let cases = cases();
+    let frames: String = cases
+        .iter()
+        .map(|c| {
+            let hex: String = c.data.iter().map(|b| format!("{b:02x}")).collect();
+            format!("{} {hex}\n", c.message)
+        })
+        .collect();
+    let script = r#"
+import sys, json, cantools
+db = cantools.database.load_file(sys.argv[1])
+for line in sys.stdin:
+    name, data = line.split()
+    msg = db.get_message_by_name(name)
+    decoded = msg.decode(bytes.fromhex(data), decode_choices=True)
+    print(json.dumps({k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in decoded.items()}))
+"#;
+    let mut child = std::process::Command::new(&py)
+        .args([
+            "-c",
+            script,
+            &root.join("config/flyd.dbc").to_string_lossy(),
+        ])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("python runs");
+    {
+        use std::io::Write;
+        let mut stdin = child.stdin.take().expect("stdin");
+        stdin.write_all(frames.as_bytes()).expect("frames written");
+    }
+    let out = child.wait_with_output().expect("python ends");
+    assert!(
+        out.status.success(),
+        "cantools failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), cases.len(), "{text}");
+    let dbc = load();
+    for (case, line) in cases.iter().zip(lines) {
+        let decoded: serde_json::Value = serde_json::from_str(line).expect("json");
+        for (name, want) in &case.want {
+            let got = &decoded[*name];
+            let context = format!("{}.{name}: cantools gave {got} ({want:?})", case.message);
+            match *want {
+                Want::Phys(v) => {
+                    let step = signal(message(&dbc, case.message), name).factor.abs();
+                    let got = got.as_f64().unwrap_or(f64::NAN);
+                    assert!((got - v).abs() <= step * 0.501, "{context}");
+                }
+                Want::Named(label) => assert_eq!(got.as_str(), Some(label), "{context}"),
+                Want::Crc | Want::Counter => assert!(got.is_number(), "{context}"),
+            }
+        }
+    }
 }

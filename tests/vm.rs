@@ -419,7 +419,13 @@ impl FlydRun {
         );
         let mut out = vec![format!("{} frames, every CRC valid", self.frames.len())];
         let mut gaps = 0;
-        for name in ["FLYD_Command", "FLYD_Status", "FLYD_Obstacle", "FLYD_Path"] {
+        for name in [
+            "FLYD_Command",
+            "FLYD_Status",
+            "FLYD_Obstacle",
+            "FLYD_Path",
+            "FLYD_ObstacleMotion",
+        ] {
             let msgs = self.messages(name);
             assert!(msgs.len() > 10, "only {} {name} frames", msgs.len());
             for w in msgs.windows(2) {

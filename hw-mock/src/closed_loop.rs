@@ -208,6 +208,12 @@ pub struct CaseSpec {
     /// How long the run lasts at most (default: until the vehicle is past the last actor).
     #[serde(default)]
     pub seconds: Option<f64>,
+    /// The protocol's steady state before the judged run, seconds (default 0): the driver
+    /// drives at the set speed whatever flyd commands, and nothing flyd asks then counts
+    /// (Euro NCAP's car-to-car runs start with the vehicle following at a steady speed and
+    /// gap; flyd, running long before, knows the car ahead by then).
+    #[serde(default)]
+    pub warmup_s: Option<f64>,
     /// What the run must show: `no-contact`, `impact-below` (with `impact_kmh`),
     /// `no-activation`, `peak-decel-below` (with `decel`).
     pub expect: String,
@@ -292,6 +298,8 @@ pub struct Case {
     pub speed: f64,
     /// The run's length, seconds.
     pub seconds: f64,
+    /// Seconds at the start when the vehicle does not obey flyd (see [`CaseSpec::warmup_s`]).
+    pub warmup: f64,
     pub actors: Vec<Actor>,
     pub vehicle: VehicleConfig,
     pub body: VehicleBody,
@@ -515,6 +523,15 @@ impl CaseSpec {
                 Some(s) => return Err(err(format!("seconds = {s}: must be within 0.5..=120"))),
                 None => ((farthest + body.length) / speed + speed + 2.0).clamp(3.0, 40.0),
             };
+            let warmup = match self.warmup_s {
+                None => 0.0,
+                Some(w) if w.is_finite() && w >= 0.0 && w < seconds => w,
+                Some(w) => {
+                    return Err(err(format!(
+                        "warmup_s = {w}: must be >= 0 and shorter than the run ({seconds} s)"
+                    )));
+                }
+            };
             let name = if speeds.len() > 1 {
                 format!("{}-{}kmh", self.name, fmt_kmh(*kmh))
             } else {
@@ -526,6 +543,7 @@ impl CaseSpec {
                 road,
                 speed,
                 seconds,
+                warmup,
                 actors,
                 vehicle,
                 body,

@@ -80,6 +80,7 @@ struct RawDecision {
     max_decel: f64,
     reaction_time_ms: f64,
     margin_m: f64,
+    lead_decel: f64,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -168,6 +169,7 @@ impl Default for RawDecision {
             max_decel: d.max_decel,
             reaction_time_ms: d.reaction_time.as_secs_f64() * 1e3,
             margin_m: d.margin,
+            lead_decel: d.lead_decel,
         }
     }
 }
@@ -382,6 +384,7 @@ impl RawDecision {
             slow_decel: self.slow_decel,
             stop_decel: self.stop_decel,
             max_decel: self.max_decel,
+            lead_decel: self.lead_decel,
         };
         match config.validate() {
             Ok(()) => Ok(config),

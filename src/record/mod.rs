@@ -519,6 +519,9 @@ impl Recorder {
             path_curvature_now: o.path.map(|p| p.now.curvature),
             path_curvature_rate: o.path.map(|p| p.held.rate).filter(|r| *r != 0.0),
             search_far_m: Some(o.search_far),
+            candidate_speed_mps: o.tracked.motion.map(|m| m.speed),
+            candidate_speed_sigma: o.tracked.motion.map(|m| m.speed_sigma),
+            obstacle_speed_mps: input.obstacle.map(|_| input.credited()),
         };
         let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);
         self.perception(event, obstacle, o.tracked.confirmed);
@@ -551,6 +554,7 @@ impl Recorder {
             changed: decision.changed,
             global_warning: input.global_warning,
             obstacle_m: input.obstacle,
+            obstacle_speed_mps: input.obstacle.map(|_| input.credited()),
             speed: input.speed,
             state: topics::String8::new(state.name()),
         });

@@ -319,6 +319,9 @@ mod tests {
             path_curvature_now: path_curvature,
             path_curvature_rate: None,
             search_far_m: Some(40.0),
+            candidate_speed_mps: None,
+            candidate_speed_sigma: None,
+            obstacle_speed_mps: None,
         }
     }
 

@@ -239,6 +239,17 @@ pub struct PerceptionEvent {
     /// (`flyd_core::perception::range`). None in recordings made before it.
     #[serde(default)]
     pub search_far_m: Option<f64>,
+    /// How the candidate moves over the ground along the path, m/s, and that speed's standard
+    /// error (`flyd_core::perception::motion`); None before its track has three sightings
+    /// (and in recordings made before it).
+    #[serde(default)]
+    pub candidate_speed_mps: Option<f64>,
+    #[serde(default)]
+    pub candidate_speed_sigma: Option<f64>,
+    /// The confirmed obstacle's speed the decision credited, m/s (0: taken as still); None
+    /// without a confirmed obstacle (and in recordings made before it).
+    #[serde(default)]
+    pub obstacle_speed_mps: Option<f64>,
 }
 
 impl PerceptionEvent {
@@ -262,6 +273,9 @@ impl PerceptionEvent {
         ("path_curvature", OPT_NUM),
         ("path_curvature_now", OPT_NUM),
         ("search_far_m", OPT_NUM),
+        ("candidate_speed_mps", OPT_NUM),
+        ("candidate_speed_sigma", OPT_NUM),
+        ("obstacle_speed_mps", OPT_NUM),
     ];
 }
 
@@ -309,6 +323,9 @@ pub struct DecisionEvent {
     #[serde(with = "nan_as_null")]
     pub global_warning: f64,
     pub obstacle_m: Option<f64>,
+    /// The obstacle's speed the decision credited, m/s (see [`PerceptionEvent`]).
+    #[serde(default)]
+    pub obstacle_speed_mps: Option<f64>,
     #[serde(with = "nan_as_null")]
     pub speed: f64,
     pub state: String8,
@@ -325,6 +342,7 @@ impl DecisionEvent {
         ("changed", BOOL),
         ("global_warning", NUM),
         ("obstacle_m", OPT_NUM),
+        ("obstacle_speed_mps", OPT_NUM),
         ("speed", NUM),
         ("state", STR),
     ];

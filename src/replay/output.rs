@@ -80,7 +80,7 @@ visible,road_source,road_height,road_pitch_deg,road_roll_deg,road_inliers,corrid
 unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_near,obstacle_lateral,\
 obstacle_bottom,obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
 left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh,\
-search_far_m";
+search_far_m,obstacle_speed,obstacle_speed_sigma,obstacle_motion_established,obstacle_credited_speed";
 
 /// One row of `trace.csv` (no newline).
 fn trace_line(r: &TraceRow) -> String {
@@ -91,7 +91,7 @@ fn trace_line(r: &TraceRow) -> String {
     let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
         "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
-         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1}",
+         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1},{},{},{},{:.3}",
         r.stats.generation,
         r.frame,
         r.frame_name,
@@ -129,6 +129,12 @@ fn trace_line(r: &TraceRow) -> String {
         frac(rh.unchanged),
         r.speed * 3.6,
         r.search_far,
+        num(r.tracked.motion.map(|m| m.speed)),
+        num(r.tracked.motion.map(|m| m.speed_sigma)),
+        r.tracked
+            .motion
+            .map_or(String::new(), |m| (m.established as u8).to_string()),
+        r.tracked.decision_speed(),
     )
 }
 

@@ -14,7 +14,7 @@ use flyd::config::DaemonConfig;
 use flyd::daemon::{self, MonotonicClock, RunReport, SharedClock, Shutdown};
 use flyd::source::{FrameMeta, FrameSource, SourceError};
 use flyd_core::can::messages::{
-    AliveCounter, CanMessage, CommandMsg, ObstacleMsg, PathMsg, StatusMsg,
+    AliveCounter, CanMessage, CommandMsg, ObstacleMotionMsg, ObstacleMsg, PathMsg, StatusMsg,
 };
 use flyd_core::decision::DecisionConfig;
 use flyd_core::decision::{Command, CommandReason};
@@ -359,6 +359,7 @@ pub enum Frame {
     Status(StatusMsg, AliveCounter),
     Obstacle(ObstacleMsg, AliveCounter),
     Path(PathMsg, AliveCounter),
+    ObstacleMotion(ObstacleMotionMsg, AliveCounter),
 }
 
 pub fn decode(f: &RecordedFrame) -> Frame {
@@ -386,6 +387,12 @@ pub fn decode(f: &RecordedFrame) -> Frame {
                 PathMsg::decode_with(&f.data, PathMsg::DEFAULT_DATA_ID).unwrap_or_else(ctx(f));
             Frame::Path(m, c)
         }
+        0x124 => {
+            let (m, c) =
+                ObstacleMotionMsg::decode_with(&f.data, ObstacleMotionMsg::DEFAULT_DATA_ID)
+                    .unwrap_or_else(ctx(f));
+            Frame::ObstacleMotion(m, c)
+        }
         id => panic!("unexpected CAN id {id:#x}"),
     }
 }
@@ -402,6 +409,10 @@ macro_rules! messages {
             .filter_map(|f| if let $kind(m, _) = f { Some(*m) } else { None })
             .collect()
     };
+}
+
+pub fn obstacle_motions(frames: &[Frame]) -> Vec<ObstacleMotionMsg> {
+    messages!(frames, Frame::ObstacleMotion)
 }
 
 pub fn paths(frames: &[Frame]) -> Vec<PathMsg> {
@@ -436,6 +447,12 @@ pub fn status_counter(f: &Frame) -> Option<AliveCounter> {
 pub fn obstacle_counter(f: &Frame) -> Option<AliveCounter> {
     match f {
         Frame::Obstacle(_, c) => Some(*c),
+        _ => None,
+    }
+}
+pub fn obstacle_motion_counter(f: &Frame) -> Option<AliveCounter> {
+    match f {
+        Frame::ObstacleMotion(_, c) => Some(*c),
         _ => None,
     }
 }
@@ -475,7 +492,7 @@ pub fn summary(frames: &[Frame]) -> String {
         let s = match f {
             Frame::Command(m, _) => format!("cmd {} {}", m.command, m.reason),
             Frame::Status(m, _) => format!("status {} {}", m.state, m.faults),
-            Frame::Obstacle(..) | Frame::Path(..) => continue,
+            Frame::Obstacle(..) | Frame::Path(..) | Frame::ObstacleMotion(..) => continue,
         };
         if s == last {
             n += 1;

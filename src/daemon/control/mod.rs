@@ -53,7 +53,7 @@ use crate::record::Observed;
 use crate::record::topics::{InputFrom, StatsEvent};
 use crate::thread::Shutdown;
 use flyd_core::can::bus::{CanBus, CanReceiver};
-use flyd_core::can::messages::{CommandMsg, ObstacleMsg, PathMsg};
+use flyd_core::can::messages::{CommandMsg, ObstacleMotionMsg, ObstacleMsg, PathMsg};
 use flyd_core::can::motion_monitor::{MotionFault, MotionMonitor};
 use flyd_core::can::{CanConfig, Transmitter};
 use flyd_core::decision::Command;
@@ -233,6 +233,7 @@ impl<B: CanBus> ControlThread<B> {
         let mut status_slot = Periodic::new(self.can.status.period(), start);
         let mut obstacle_slot = Periodic::new(self.can.obstacle.period(), start);
         let mut path_slot = Periodic::new(self.can.path.period(), start);
+        let mut obstacle_motion_slot = Periodic::new(self.can.obstacle_motion.period(), start);
         let mut stats_slot = Periodic::new(self.stats_interval, start + self.stats_interval);
         let mut s = Loop {
             latest: None,
@@ -279,6 +280,15 @@ impl<B: CanBus> ControlThread<B> {
                 let r = self.tx.send_obstacle(&msg);
                 self.sent(&mut s, r, "FLYD_Obstacle");
                 s.report.obstacles_sent += 1;
+            }
+            if obstacle_motion_slot.due(now) {
+                // How that obstacle moves, at the speed the decision takes now.
+                let speed = self.speed(now);
+                let msg = s.latest.map_or(ObstacleMotionMsg::NONE, |l| {
+                    ObstacleMotionMsg::of(&l.tracked, speed)
+                });
+                let r = self.tx.send_obstacle_motion(&msg);
+                self.sent(&mut s, r, "FLYD_ObstacleMotion");
             }
             if path_slot.due(now) {
                 let msg = s.latest.map_or(PathMsg::NONE, |l| l.path_msg());
@@ -418,6 +428,7 @@ impl<B: CanBus> ControlThread<B> {
         let age = now.saturating_sub(snapshot.capture_time());
         DecisionInput {
             global_warning: snapshot.global_warning,
+            obstacle_speed: snapshot.tracked.decision_speed(),
             latency: (age + self.frame_period).as_secs_f64(),
             ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(now))
         }

@@ -10,7 +10,8 @@
 //!
 //! The vehicle obeys once flyd's perception has decided a first time (the start-up's safe
 //! command, before the population is trusted, is the system not yet armed: Euro NCAP's runs
-//! start with the system active). A run ends at contact, one second after the vehicle came to
+//! start with the system active), and not before the case's warm-up (`warmup_s`: the
+//! protocol's steady state, the vehicle driven at its set speed). A run ends at contact, one second after the vehicle came to
 //! a standstill under a brake request, one second after its rear passed the last actor, or
 //! at the case's end.
 
@@ -327,7 +328,7 @@ impl FrameFeed for ClosedLoopFeed {
         let t = time.as_secs_f64();
         self.advance(t);
         if !self.armed {
-            if decision.reason != CommandReason::Perception {
+            if decision.reason != CommandReason::Perception || t < self.case.warmup {
                 return;
             }
             self.armed = true;

@@ -112,6 +112,7 @@ pub(super) fn replay_decisions(
                 }
                 let input = DecisionInput {
                     global_warning: o.global_warning,
+                    obstacle_speed: o.tracked.decision_speed(),
                     latency: p.latency,
                     ..DecisionInput::at_speed(o.obstacle, p.speed)
                 };
@@ -149,6 +150,7 @@ pub(super) fn replay_decisions(
                                 .and_then(outcome)
                                 .map(|o| DecisionInput {
                                     global_warning: o.global_warning,
+                                    obstacle_speed: o.tracked.decision_speed(),
                                     latency: d.latest_latency.unwrap_or(f64::NAN),
                                     ..DecisionInput::at_speed(
                                         o.obstacle,

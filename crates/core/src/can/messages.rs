@@ -337,12 +337,14 @@ macro_rules! default_codec {
 // above.
 mod flyd_command;
 mod flyd_obstacle;
+mod flyd_obstacle_motion;
 mod flyd_path;
 mod flyd_status;
 mod vcu_motion;
 
 pub use flyd_command::CommandMsg;
 pub use flyd_obstacle::ObstacleMsg;
+pub use flyd_obstacle_motion::{NOT_CLOSING, ObstacleMotionMsg};
 pub use flyd_path::PathMsg;
 pub use flyd_status::StatusMsg;
 pub use vcu_motion::MotionMsg;

@@ -7,6 +7,8 @@
 //! | `FLYD_Command`  | 0x120 | 0x0120 | 20 ms  | CLEAR / SLOW / STOP, deceleration, global warning, reason |
 //! | `FLYD_Status`   | 0x121 | 0x0121 | 20 ms  | state, fault bits, perception age, rates |
 //! | `FLYD_Obstacle` | 0x122 | 0x0122 | 100 ms | nearest relevant obstacle |
+//! | `FLYD_Path` | 0x123 | 0x0123 | 100 ms | the path the corridor follows |
+//! | `FLYD_ObstacleMotion` | 0x124 | 0x0124 | with `FLYD_Obstacle` | its closing speed, time to collision, speed |
 //! | `VCU_Motion` (received) | 0x110 | 0x0110 | 20 ms | the vehicle's speed and yaw rate ([`motion_monitor`]) |
 //!
 //! Every frame: 8 bytes, byte 0 = CRC-8 SAE J1850 over (Data ID lo, Data ID hi, bytes 1..=7),
@@ -34,7 +36,10 @@ use thiserror::Error;
 
 use bus::{BusError, CanBus};
 use candump::CAN_SFF_MAX;
-use messages::{AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMsg, PathMsg, StatusMsg};
+use messages::{
+    AliveCounter, CanMessage, CommandMsg, MotionMsg, ObstacleMotionMsg, ObstacleMsg, PathMsg,
+    StatusMsg,
+};
 
 /// Where and how often one message is sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -71,6 +76,8 @@ pub struct CanConfig {
     pub status: MessageConfig,
     pub obstacle: MessageConfig,
     pub path: MessageConfig,
+    /// `FLYD_ObstacleMotion`, sent with `FLYD_Obstacle`.
+    pub obstacle_motion: MessageConfig,
     /// `VCU_Motion`, received: its period is the sender's, what staleness is counted in.
     pub motion: MessageConfig,
 }
@@ -82,6 +89,7 @@ impl Default for CanConfig {
             status: MessageConfig::default_for::<StatusMsg>(),
             obstacle: MessageConfig::default_for::<ObstacleMsg>(),
             path: MessageConfig::default_for::<PathMsg>(),
+            obstacle_motion: MessageConfig::default_for::<ObstacleMotionMsg>(),
             motion: MessageConfig::default_for::<MotionMsg>(),
         }
     }
@@ -116,12 +124,13 @@ pub enum CanConfigError {
 }
 
 impl CanConfig {
-    fn named(&self) -> [(&'static str, MessageConfig); 5] {
+    fn named(&self) -> [(&'static str, MessageConfig); 6] {
         [
             (CommandMsg::NAME, self.command),
             (StatusMsg::NAME, self.status),
             (ObstacleMsg::NAME, self.obstacle),
             (PathMsg::NAME, self.path),
+            (ObstacleMotionMsg::NAME, self.obstacle_motion),
             (MotionMsg::NAME, self.motion),
         ]
     }
@@ -138,7 +147,10 @@ impl CanConfig {
             // The command and the status are what the VCU watches for a live flyd (3 missed
             // periods), the motion what flyd watches for a live VCU; the obstacle and the
             // path are information.
-            let max = if message == ObstacleMsg::NAME || message == PathMsg::NAME {
+            let max = if message == ObstacleMsg::NAME
+                || message == PathMsg::NAME
+                || message == ObstacleMotionMsg::NAME
+            {
                 1000
             } else {
                 100
@@ -182,6 +194,7 @@ pub struct Transmitter<B: CanBus> {
     status_counter: AliveCounter,
     obstacle_counter: AliveCounter,
     path_counter: AliveCounter,
+    obstacle_motion_counter: AliveCounter,
 }
 
 impl<B: CanBus> Transmitter<B> {
@@ -194,6 +207,7 @@ impl<B: CanBus> Transmitter<B> {
             status_counter: AliveCounter::ZERO,
             obstacle_counter: AliveCounter::ZERO,
             path_counter: AliveCounter::ZERO,
+            obstacle_motion_counter: AliveCounter::ZERO,
         })
     }
 
@@ -222,6 +236,12 @@ impl<B: CanBus> Transmitter<B> {
     pub fn send_path(&mut self, msg: &PathMsg) -> Result<(), BusError> {
         let m = self.config.path;
         let data = msg.encode_with(self.path_counter.advance(), m.data_id);
+        self.bus.send(m.id, &data)
+    }
+
+    pub fn send_obstacle_motion(&mut self, msg: &ObstacleMotionMsg) -> Result<(), BusError> {
+        let m = self.config.obstacle_motion;
+        let data = msg.encode_with(self.obstacle_motion_counter.advance(), m.data_id);
         self.bus.send(m.id, &data)
     }
 

@@ -679,3 +679,144 @@ fn the_worst_of_two_snapshots_keeps_the_nearest_obstacle() {
             .is_nan()
     );
 }
+
+/// A snapshot of an obstacle `d` metres ahead moving at `u` m/s along the path, the vehicle
+/// at `v`, with a 67 ms latency (a 30 fps frame's age and the next frame).
+fn behind(d: f64, v: f64, u: f64) -> DecisionInput {
+    DecisionInput {
+        obstacle_speed: u,
+        latency: 0.067,
+        ..DecisionInput::at_speed(Some(d), v)
+    }
+}
+
+const KMH50: f64 = 50.0 / 3.6;
+
+#[test]
+fn a_car_followed_at_a_second_is_neither_slow_nor_stop() {
+    let d = Decider::new(DecisionConfig::default()).expect("valid");
+    for (v, gap_s) in [
+        (KMH30, 1.0),
+        (KMH30, 1.5),
+        (40.0 / 3.6, 1.0),
+        (KMH50, 1.0),
+        (KMH50, 2.0),
+    ] {
+        // Credited half a metre a second slower than it drives (two standard errors).
+        let input = behind(v * gap_s, v, v - 0.5);
+        assert_eq!(d.level(&input), Clear, "{v} m/s at {gap_s} s");
+        // The same car standing: today's rule, a STOP or a SLOW.
+        assert!(
+            d.level(&behind(v * gap_s, v, 0.0)) > Clear,
+            "{v} m/s at {gap_s} s"
+        );
+    }
+    // Tailgating: STOP within what the vehicle closes in while it reacts to the car's
+    // braking, plus the margin; the same at 30 and 50 km/h.
+    let c = DecisionConfig::default();
+    for v in [KMH30, KMH50] {
+        let (stop, slow) = (c.reach_behind(Stop, v, v), c.reach_behind(Slow, v, v));
+        assert!(
+            (stop - 3.5).abs() < 0.01 && (slow - 2.56).abs() < 0.01,
+            "{stop} {slow}"
+        );
+        assert_eq!(d.level(&behind(stop - 0.05, v, v)), Stop);
+        assert_eq!(d.level(&behind(stop + 0.05, v, v)), Clear);
+    }
+}
+
+#[test]
+fn a_still_obstacle_is_decided_as_before_whatever_is_credited_to_nothing() {
+    let d = Decider::new(DecisionConfig::default()).expect("valid");
+    // 0, NaN, negative (oncoming) and infinite credit: a still obstacle, bit for bit.
+    for u in [0.0, f64::NAN, -5.0, f64::NEG_INFINITY, f64::INFINITY] {
+        for distance in [5.0, 14.0, 15.2, 20.0, 29.0, 40.0] {
+            let still = DecisionInput {
+                latency: 0.067,
+                ..DecisionInput::at_speed(Some(distance), KMH30)
+            };
+            let credited = DecisionInput {
+                obstacle_speed: u,
+                ..still
+            };
+            let (mut a, mut b) = (d.clone(), d.clone());
+            let (x, y) = (
+                a.update(still, Duration::ZERO),
+                b.update(credited, Duration::ZERO),
+            );
+            let inf = u == f64::INFINITY;
+            assert!(x == y || inf, "{u} at {distance}: {x:?} vs {y:?}");
+            assert!(
+                !y.fault,
+                "a speed that cannot be true is taken as still, not a fault"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_slower_car_ahead_asks_slow_then_stop_as_the_gap_closes() {
+    let d = Decider::new(DecisionConfig::default()).expect("valid");
+    let (v, u) = (KMH50, 20.0 / 3.6);
+    // SLOW from 59.5 m (the car stops in 13.7 m were it to brake at 1.1 m/s^2; the vehicle
+    // needs 71.2 m at SLOW's 1.5), STOP from 28 m (at 3 and 4 m/s^2: 5.1 and 31 m).
+    let levels: Vec<Command> = [75.0, 60.5, 58.0, 29.0, 27.0, 8.0]
+        .iter()
+        .map(|&gap| d.level(&behind(gap, v, u)))
+        .collect();
+    assert_eq!(levels, [Clear, Clear, Slow, Slow, Stop, Stop], "{levels:?}");
+    // Its STOP asks for what keeps the margin were it to brake at lead_decel: less than the
+    // still obstacle's rule at the same distance, it drives on.
+    let mut a = d.clone();
+    a.update(DecisionInput::at_speed(None, v), Duration::ZERO);
+    let moving = a.update(behind(20.0, v, u), Duration::from_millis(100));
+    let mut b = d.clone();
+    b.update(DecisionInput::at_speed(None, v), Duration::ZERO);
+    let still = b.update(behind(20.0, v, 0.0), Duration::from_millis(100));
+    assert_eq!((moving.command, still.command), (Stop, Stop));
+    assert!(
+        moving.requested_decel < still.requested_decel,
+        "{moving:?} vs {still:?}"
+    );
+    assert!(moving.requested_decel >= 4.0);
+}
+
+#[test]
+fn a_car_that_brakes_ahead_is_a_stop_as_soon_as_its_speed_drops() {
+    let d = Decider::new(DecisionConfig::default()).expect("valid");
+    let v = KMH50;
+    // Followed at 12 m (0.86 s): clear while it drives at the vehicle's speed.
+    assert_eq!(d.level(&behind(12.0, v, v - 0.4)), Clear);
+    // 2 m/s slower (a third of a second at 6 m/s^2): SLOW; 3 m/s (half a second, 1.3 m
+    // nearer): STOP.
+    assert_eq!(d.level(&behind(10.7, v, v - 2.0)), Slow);
+    assert_eq!(d.level(&behind(10.7, v, v - 3.0)), Stop);
+    // lead_decel is validated.
+    for bad in [0.0, 0.5, 11.0, f64::NAN] {
+        let c = DecisionConfig {
+            lead_decel: bad,
+            ..DecisionConfig::default()
+        };
+        assert!(c.validate().is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn the_worst_of_two_snapshots_credits_the_slower_obstacle() {
+    let a = behind(12.0, 10.0, 8.0);
+    let b = behind(20.0, 10.0, 5.0);
+    assert_eq!(a.worst(b).obstacle_speed, 5.0);
+    assert_eq!(
+        a.worst(DecisionInput::at_speed(None, 10.0)).obstacle_speed,
+        8.0
+    );
+    assert_eq!(
+        DecisionInput::at_speed(None, 10.0).worst(a).obstacle_speed,
+        8.0
+    );
+    let nan = DecisionInput {
+        obstacle_speed: f64::NAN,
+        ..a
+    };
+    assert_eq!(a.worst(nan).obstacle_speed, 0.0);
+}

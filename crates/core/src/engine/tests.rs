@@ -919,6 +919,63 @@ fn predict_moves_flies_as_the_vehicle_moves() {
 }
 
 #[test]
+fn flies_on_an_obstacle_that_moves_are_moved_as_it_moves() {
+    let rig = rig();
+    let mut e = Engine::new(&rig, params(16, 1)).expect("engine");
+    // Flies 0..8 on a car 10 m ahead, the others 30 m ahead beside it.
+    for i in 0..e.pop.len() {
+        let on_car = i < 8;
+        e.pop.x[i] = if on_car { 0.2 } else { 4.0 };
+        e.pop.z[i] = if on_car { 10.0 } else { 30.0 };
+    }
+    let before = e.population().clone();
+    let car = MovingRegion {
+        x: (-1.3, 1.7),
+        z: (9.0, 13.0),
+        travelled: 0.9,
+    };
+    e.predict_around(
+        VehicleMotion {
+            speed: 10.0,
+            yaw_rate: 0.0,
+        },
+        0.1,
+        Some(car),
+    );
+    let p = e.population();
+    for i in 0..p.len() {
+        let moved = match (i % 4 == 3, i < 8) {
+            (true, _) => 0.0,
+            // The car drove 0.9 m of the vehicle's 1 m: 0.1 m nearer.
+            (false, true) => 0.1,
+            (false, false) => 1.0,
+        };
+        assert!(
+            (p.z[i] - (before.z[i] - moved)).abs() < 1e-5,
+            "fly {i}: {}",
+            p.z[i]
+        );
+    }
+    // A region whose travel is not finite is no region.
+    let mut f = Engine::new(&rig, params(16, 1)).expect("engine");
+    let mut g = Engine::new(&rig, params(16, 1)).expect("engine");
+    let m = VehicleMotion {
+        speed: 10.0,
+        yaw_rate: 0.0,
+    };
+    f.predict(m, 0.1);
+    g.predict_around(
+        m,
+        0.1,
+        Some(MovingRegion {
+            travelled: f64::NAN,
+            ..car
+        }),
+    );
+    assert_eq!(f.population().z, g.population().z);
+}
+
+#[test]
 fn predicted_flies_stay_on_the_wall_the_vehicle_drives_towards() {
     let rig = rig();
     // Driving 0.5 m towards the wall between two frames: 5 m, then 4.5 m, texture fixed to it.

@@ -107,6 +107,21 @@ impl History {
         self.len == 0
     }
 
+    /// The newest sighting: (time, along, lateral).
+    pub fn newest(&self) -> Option<(f64, f64, f64)> {
+        (self.len > 0).then(|| self.sample(self.len - 1))
+    }
+
+    /// Where the obstacle of these sightings is along the path at `time`, as its motion
+    /// carries its newest sighting on, and how uncertain that is from the motion's speed
+    /// (two standard errors over the time since), metres; none before a motion.
+    pub fn along_at(&self, time: f64) -> Option<(f64, f64)> {
+        let m = self.motion()?;
+        let (t, along, _) = self.newest()?;
+        let dt = (time - t).max(0.0);
+        Some((along + m.speed * dt, 2.0 * m.speed_sigma * dt))
+    }
+
     /// The `i`th oldest sighting.
     fn sample(&self, i: usize) -> (f64, f64, f64) {
         self.samples[(self.start + i) % WINDOW]
