@@ -31,7 +31,23 @@ const REOPEN_BACKOFF_MAX: Duration = Duration::from_secs(2);
 impl<B, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
     /// Opens the bus with `open` now; a missing device is not an error (it is waited for),
     /// any other failure is (a kernel without CAN, a permission denied).
-    pub fn new(name: &str, mut open: F, clock: impl Clock + 'static) -> Result<Self, BusError> {
+    pub fn new(name: &str, open: F, clock: impl Clock + 'static) -> Result<Self, BusError> {
+        Self::opened(name, open, clock, true)
+    }
+
+    /// [`ReopeningBus::new`] for a second socket on an interface another one already waits
+    /// for (the vehicle's frames beside flyd's): a missing device is logged at DEBUG, so the
+    /// WARN says it once.
+    pub fn beside(name: &str, open: F, clock: impl Clock + 'static) -> Result<Self, BusError> {
+        Self::opened(name, open, clock, false)
+    }
+
+    fn opened(
+        name: &str,
+        mut open: F,
+        clock: impl Clock + 'static,
+        loud: bool,
+    ) -> Result<Self, BusError> {
         let now = clock.now();
         let (bus, last_error) = match open() {
             Ok(bus) => (
@@ -41,11 +57,15 @@ impl<B, F: FnMut() -> Result<B, BusError> + Send> ReopeningBus<B, F> {
                 },
             ),
             Err(e @ BusError::NoDevice { .. }) => {
-                tracing::warn!(
-                    interface = name, error = %e,
-                    "CAN interface missing: waiting for it (safe command and status as soon as it \
-                     appears; CAN_TX_ERROR meanwhile)"
-                );
+                if loud {
+                    tracing::warn!(
+                        interface = name, error = %e,
+                        "CAN interface missing: waiting for it (safe command and status as soon \
+                         as it appears; CAN_TX_ERROR meanwhile)"
+                    );
+                } else {
+                    tracing::debug!(interface = name, error = %e, "CAN interface missing");
+                }
                 (None, e)
             }
             Err(e) => return Err(e),

@@ -83,7 +83,7 @@ pub fn open_receiver(
         (CanTarget::Interface(iface), _) => {
             let name = iface.clone();
             let open = move || SocketCanRx::open(&name, &[motion.id]);
-            ReopeningBus::new(iface, open, super::MonotonicClock)
+            ReopeningBus::beside(iface, open, super::MonotonicClock)
                 .map(|rx| Some(Box::new(rx) as Box<dyn CanReceiver>))
                 .map_err(|error| DaemonError::Bus {
                     target: iface.clone(),

@@ -257,7 +257,7 @@ pub fn run(
         .with_warmup(config.evolution.warmup_generations)
         .with_reach(config.decision);
     tracing::info!(
-        judgeable_m = perception.judgeable_distance(),
+        judgeable_m = crate::logging::shown(perception.judgeable_distance(), 2),
         "perception: both cameras see the whole corridor from this distance on; a nearer \
          obstacle is confirmed only when seen coming from beyond it"
     );

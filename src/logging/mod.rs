@@ -144,6 +144,17 @@ pub enum Output {
 
 /// What `format` means for `target`: auto is the journal on the journal's stream, JSON off a
 /// terminal, human text on one.
+/// `value` rounded to `decimals` places, for a log field: a figure a person reads
+/// (`speed_kmh=30`, not `30.000000000000004`, a km/h worked out from m/s).
+pub fn shown(value: f64, decimals: i32) -> f64 {
+    let scale = 10f64.powi(decimals);
+    if value.is_finite() {
+        (value * scale).round() / scale
+    } else {
+        value
+    }
+}
+
 pub fn output(format: LogFormat, target: LogTarget) -> Output {
     match format {
         LogFormat::Journal => Output::Journal,

@@ -121,8 +121,8 @@ impl Alarms {
 /// The JSON summary printed on stdout.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
-    /// Mean warning of the final population (the paper's global warning).
-    pub global_warning: f64,
+    /// (The mean warning of the final population, the paper's global warning, is `last`'s
+    /// `global_warning`.)
     /// Contrast-independent danger of the final population, m^-3 (see the engine docs).
     pub danger: f64,
     pub generations: u64,
@@ -136,8 +136,9 @@ pub struct Summary {
     pub out_dir: String,
     /// The decision: its mode and the speed it assumed.
     pub decision_mode: String,
-    /// The speed decided at where the feed does not give one (`--speed`, else the assumed).
-    pub speed_kmh: f64,
+    /// The speed decided at where the feed does not give one (`--speed`, else the assumed);
+    /// null when the feed gives every frame's (`speed_source` "feed": `decided_kmh` says it).
+    pub speed_kmh: Option<f64>,
     /// "fixed" (`--speed`: on every frame), "feed" (a scenario's own speed; `speed_kmh`
     /// unused) or "assumed".
     pub speed_source: &'static str,
@@ -234,7 +235,6 @@ impl Summary {
                 .to_string()
         });
         Self {
-            global_warning: stats.global_warning,
             danger: stats.danger,
             generations: stats.generation,
             frames: replay.frames,
@@ -244,7 +244,8 @@ impl Summary {
             perception_stage: Timing::of(&mut stage),
             out_dir: out.display().to_string(),
             decision_mode: replay.settings.decision.mode.to_string(),
-            speed_kmh: (replay.settings.speed * 3.6 * 1000.0).round() / 1000.0,
+            speed_kmh: (replay.settings.fixed_speed || !replay.moving_feed)
+                .then(|| (replay.settings.speed * 3.6 * 1000.0).round() / 1000.0),
             speed_source: if replay.settings.fixed_speed {
                 "fixed"
             } else if replay.moving_feed {

@@ -36,7 +36,7 @@ impl<B: CanBus> ControlThread<B> {
                 global_warning = warning,
                 faults = %s.faults,
                 obstacle_m = input.obstacle,
-                speed_kmh = input.speed * 3.6,
+                speed_kmh = crate::logging::shown(input.speed * 3.6, 2),
                 motion = self.motion_label(s),
                 road = %s.latest.map_or(RoadSource::Prior, |l| l.road.source),
                 "decision changed"

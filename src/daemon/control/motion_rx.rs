@@ -58,7 +58,7 @@ impl<B: CanBus> ControlThread<B> {
                         if !s.rx_failing {
                             tracing::warn!(
                                 %error,
-                                "CAN receive failed: the vehicle's motion goes stale (logged once                                  until it recovers)"
+                                "CAN receive failed: the vehicle's motion goes stale (logged once until it recovers)"
                             );
                             s.rx_failing = true;
                         }
@@ -78,7 +78,7 @@ impl<B: CanBus> ControlThread<B> {
                 (None, Some(m)) => {
                     s.motion_known_once = true;
                     tracing::info!(
-                        speed_kmh = m.speed * 3.6,
+                        speed_kmh = crate::logging::shown(m.speed * 3.6, 2),
                         yaw_rate = m.yaw_rate,
                         "vehicle motion known: stopping distances at the measured speed"
                     );
@@ -89,7 +89,7 @@ impl<B: CanBus> ControlThread<B> {
                     }
                     tracing::warn!(
                         motion_fault = %f,
-                        assumed_speed_kmh = self.assumed_speed * 3.6,
+                        assumed_speed_kmh = crate::logging::shown(self.assumed_speed * 3.6, 2),
                         accepted = counters.accepted,
                         rejected = counters.rejected(),
                         "vehicle motion unknown: stopping distances at the assumed speed"
@@ -105,7 +105,7 @@ impl<B: CanBus> ControlThread<B> {
         if beyond != s.beyond_range {
             if beyond {
                 tracing::warn!(
-                    speed_kmh = speed * 3.6,
+                    speed_kmh = crate::logging::shown(speed * 3.6, 2),
                     slow_distance_m = reach,
                     range_m = self.range,
                     "speed beyond what flyd sees in time: the SLOW distance exceeds the farthest \

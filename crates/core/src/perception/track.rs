@@ -423,11 +423,11 @@ impl Tracker {
             && (lateral - was_lateral).abs() <= RESUME_LATERAL
     }
 
-    /// `o` where the vehicle's travel over the current interval brings it, its near bound
-    /// the same disparity nearer.
-    fn travelled(&self, o: &Obstacle) -> Obstacle {
+    /// `o` moved `by` metres along the path (negative: nearer), its near bound the same
+    /// disparity nearer than its distance.
+    fn shifted(&self, o: &Obstacle, by: f64) -> Obstacle {
         let f_b = self.pixels_per_inverse_depth;
-        let distance = o.distance - self.interval.0;
+        let distance = o.distance + by;
         let extra = f_b * (1.0 / o.near - 1.0 / o.distance);
         let near = if distance > 0.0 && f_b > 0.0 && extra.is_finite() {
             f_b / (f_b / distance + extra)
@@ -445,10 +445,7 @@ impl Tracker {
     /// brought it, or released.
     fn missed(&self, t: Track) -> Option<Track> {
         let misses = t.misses.saturating_add(1);
-        let mut last = self.travelled(&t.last);
-        let ahead = own_travel(&t, self.interval.1);
-        last.distance += ahead;
-        last.near += ahead;
+        let last = self.shifted(&t.last, own_travel(&t, self.interval.1) - self.interval.0);
         (misses < self.config.release_frames).then_some(Track { misses, last, ..t })
     }
 }
