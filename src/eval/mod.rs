@@ -47,6 +47,16 @@ pub enum EvalError {
     },
     #[error("starting a worker thread")]
     Spawn(#[source] std::io::Error),
+    /// Items' folders missing under the data folder: said once, with the fix.
+    #[error(
+        "{missing} of the items' folders are not in {data} (the first: {first}); give `--data \
+         DIR`, the folder that holds them (the manifest's `data`, relative to it, by default)"
+    )]
+    MissingData {
+        data: String,
+        first: String,
+        missing: usize,
+    },
 }
 
 /// The replay request of `item`, seed `seed`, its rig at `rig` (when it has a folder).
@@ -187,6 +197,18 @@ pub fn run_with_progress(
 ) -> Result<Report, EvalError> {
     let started = std::time::Instant::now();
     let finished = AtomicUsize::new(0);
+    let absent: Vec<PathBuf> = items
+        .iter()
+        .filter_map(|item| folder(item, &options.data))
+        .filter(|dir| !dir.is_dir())
+        .collect();
+    if let Some(first) = absent.first() {
+        return Err(EvalError::MissingData {
+            data: options.data.display().to_string(),
+            first: first.display().to_string(),
+            missing: absent.len(),
+        });
+    }
     let rigs = items
         .iter()
         .map(|item| rig_of(item, &options.data, &options.work))
