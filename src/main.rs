@@ -376,13 +376,19 @@ fn cmd_check_config(file: &Path) -> anyhow::Result<()> {
         eprintln!(
             "{}: warning: the rig cannot resolve the SLOW distance at vehicle.assumed_speed_kmh \
              = {:.0}: one pixel of disparity at {:.1} m is {:.1} m of depth (Z^2 / (f B)), more \
-             than decision.margin_m = {}; it resolves {:.1} m within the margin",
+             than decision.margin_m = {}; it resolves {:.1} m within the margin. To resolve it: \
+             f B of at least {:.0} px m (now {:.0}: a longer baseline, a longer focal length or \
+             a wider image), or decision.margin_m = {:.1}",
             file.display(),
             r.speed * 3.6,
             r.slow_distance,
             r.error_per_pixel,
             r.margin,
             r.resolved,
+            // What is enough, rounded up so that it is.
+            (r.slow_distance.powi(2) / r.margin.max(1e-9)).ceil(),
+            r.slow_distance.powi(2) / r.error_per_pixel.max(1e-9),
+            (r.error_per_pixel * 10.0).ceil() / 10.0,
         );
     }
     Ok(())

@@ -51,6 +51,9 @@ fn check_config_warns_when_the_rig_cannot_resolve_the_slow_distance() {
         "29.3 m is 5.5 m of depth (Z^2 / (f B))",
         "decision.margin_m = 2",
         "resolves 17.6 m",
+        // What would resolve it.
+        "To resolve it: f B of at least 430 px m",
+        "or decision.margin_m = 5.6",
     ] {
         assert!(stderr.contains(needle), "{needle:?} not in {stderr:?}");
     }
@@ -763,8 +766,8 @@ fn the_journal_stream_is_recognised_and_a_missing_journal_is_said_once() {
     }
 }
 
-/// `flyd eval` without its data names the missing file on the line a person reads, not only
-/// in `--json` (issue 47: it printed "seed 1: error").
+/// `flyd eval` without its data names the missing folder on the line a person reads, once,
+/// with the option that fixes it (issue 47: it printed "seed 1: error"; issue 57: a line a run).
 #[test]
 fn eval_without_its_data_names_the_missing_file() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -779,15 +782,17 @@ fn eval_without_its_data_names_the_missing_file() {
         &dir.path().join("missing").display().to_string(),
     ]);
     assert!(!ok);
-    let line = stdout
-        .lines()
-        .chain(stderr.lines())
-        .find(|l| l.contains("kitti2012_train_000000: seed 1: error"))
-        .unwrap_or_else(|| panic!("no error line:\n{stdout}\n{stderr}"));
+    // Once, before any run: the folder, how many items miss theirs, and the option that
+    // fixes it (issue 57: it named the missing calib.txt once a run, 14 times).
+    let missing = dir.path().join("missing").display().to_string();
     assert!(
-        line.contains("calib.txt") && line.contains("No such file"),
-        "{line}"
+        stderr.contains("1 of the items' folders are not in")
+            && stderr.contains("--data")
+            && stderr.contains(&format!("{missing}/kitti2012_train_000000")),
+        "{stdout}\n{stderr}"
     );
+    assert_eq!(stderr.matches(&missing).count(), 2, "{stderr}");
+    assert!(!stdout.contains("seed 1"), "no run started: {stdout}");
 }
 
 /// The markdown files whose references `every_path_and_command_the_docs_name_exists` checks

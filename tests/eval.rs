@@ -208,27 +208,3 @@ for s in p.srcs:
         _ => panic!("OpenCV not found in target/py: run scripts/prereqs (or FLYD_ALLOW_NO_PY=1)"),
     }
 }
-
-/// A manifest whose data is not where it says: one error, naming the folder, how many items
-/// miss theirs, and the option that fixes it (not one line per missing file).
-#[test]
-fn missing_data_is_said_once_with_the_option_that_fixes_it() {
-    let (out, _) = flyd_eval(&[
-        "eval/fixtures.toml",
-        "--data",
-        "/nonexistent-flyd-data",
-        "--seeds",
-        "1",
-    ]);
-    assert!(!out.status.success());
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        stderr.contains("--data") && stderr.contains("/nonexistent-flyd-data"),
-        "{stderr}"
-    );
-    assert_eq!(
-        stderr.matches("/nonexistent-flyd-data").count(),
-        2,
-        "the folder and the first missing item, once: {stderr}"
-    );
-}

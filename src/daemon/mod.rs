@@ -494,7 +494,8 @@ fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
         resolution!(
             warn,
             "the rig cannot resolve the SLOW distance at the assumed speed: one pixel of \
-             disparity there (Z^2 / (f B)) is more depth than the decision's margin"
+             disparity there (Z^2 / (f B)) is more depth than the decision's margin \
+             (`flyd check-config` says what would)"
         );
     }
 }
