@@ -33,7 +33,7 @@
 //!   is measured over the last half second), and the next evidence decides on that.
 //!   RSS's worst case (the obstacle braking at 8 m/s^2, harder than the vehicle) asks a gap of
 //!   2 s for a following at 50 km/h without a STOP, which no traffic keeps; with the defaults
-//!   a car followed at the vehicle's speed asks nothing beyond 4.1 m and a STOP within 3.7 m
+//!   a car followed at the vehicle's speed asks a SLOW within 2.6 m and a STOP within 3.5 m
 //!   (at 30 and at 50 km/h; the evidence's latency counts the closing speed only,
 //!   `d - (v - u) latency`). A STOP requests the deceleration that keeps the margin under the
 //!   same assumption, between `stop_decel` and `max_decel`. A still obstacle
@@ -576,12 +576,9 @@ impl Decider {
                     Some(d) if d.is_nan() || d < 0.0 => None,
                     Some(d) => {
                         // Where the obstacle will be when the next evidence can act.
+                        // Both move on meanwhile (a still one: `v - 0` is `v`, bit for bit).
                         let u = input.credited();
-                        let d = if u > 0.0 {
-                            d - (v - u) * latency
-                        } else {
-                            d - v * latency
-                        };
+                        let d = d - (v - u) * latency;
                         let ratio = |command| {
                             let reach = c.reach_behind(command, v, u);
                             if d > 0.0 { reach / d } else { f64::INFINITY }

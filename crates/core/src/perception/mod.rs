@@ -483,12 +483,13 @@ impl Perception {
 
 /// The tracked obstacle's region and travel over `dt` seconds, for the flies on it
 /// ([`Engine::predict_around`]): once its track's motion is established, the flies
-/// within 2 m of it across (a car's width either way of where its flies' median is) and from a metre before its near end to 3 m behind its middle
-/// move with it. Its speed is bounded by what an obstacle may drive (40 m/s); a wrong one
+/// within 2 m of it across (a car's width either way of where its flies' median is) and from
+/// a metre before its near end to 3 m behind its middle move with it. Its speed is bounded by
+/// what an obstacle may drive ([`motion::MAX_SPEED`]); a wrong one
 /// costs the flies moved with it, a quarter of them stay where they were whatever moves.
 fn moving_region(tracked: &Tracked, dt: f64) -> Option<crate::engine::MovingRegion> {
     let (o, m) = (tracked.obstacle?, tracked.motion.filter(|m| m.established)?);
-    let speed = m.speed.clamp(-40.0, 40.0);
+    let speed = m.speed.clamp(-motion::MAX_SPEED, motion::MAX_SPEED);
     if !(speed.is_finite() && dt.is_finite() && dt > 0.0) {
         return None;
     }

@@ -28,6 +28,9 @@ pub const WINDOW: usize = 16;
 pub const MIN_SAMPLES: usize = 8;
 pub const MIN_SPAN: f64 = 0.2;
 pub const MAX_SIGMA: f64 = 1.0;
+/// The fastest an obstacle is taken to move over the ground, m/s: a motion beyond it moves
+/// neither a held track nor the flies on it by more.
+pub const MAX_SPEED: f64 = 40.0;
 /// The least depth noise a sighting is assumed to have, metres.
 pub const DEPTH_FLOOR: f64 = 0.05;
 

@@ -114,7 +114,7 @@ fn own_travel(track: &Track, dt: f64) -> f64 {
     track
         .history
         .motion()
-        .filter(|m| m.established && m.speed.abs() <= 40.0)
+        .filter(|m| m.established && m.speed.abs() <= super::motion::MAX_SPEED)
         .map_or(0.0, |m| m.speed * dt)
 }
 
@@ -279,7 +279,12 @@ impl Tracker {
     /// How uncertain a sighting's depth is at `distance`: [`DISPARITY_NOISE_PX`] of
     /// disparity there, metres.
     fn depth_noise(&self, distance: f64) -> f64 {
-        DISPARITY_NOISE_PX * distance * distance / self.pixels_per_inverse_depth.max(1e-9)
+        DISPARITY_NOISE_PX * self.depth_per_px(distance)
+    }
+
+    /// The depth a pixel of disparity spans at `distance`, metres: Z^2 / (f B).
+    fn depth_per_px(&self, distance: f64) -> f64 {
+        distance * distance / self.pixels_per_inverse_depth.max(1e-9)
     }
 
     /// `o`, seen on the current frame, in the ground frame: (time, along, lateral).
@@ -304,8 +309,7 @@ impl Tracker {
     fn continues(&self, track: &Track, o: &Obstacle) -> bool {
         let (travel, dt) = self.interval;
         let expected = track.last.distance - travel + own_travel(track, dt);
-        let resolution = DEPTH_SLACK_PX * expected.max(o.distance).powi(2)
-            / self.pixels_per_inverse_depth.max(1e-9);
+        let resolution = DEPTH_SLACK_PX * self.depth_per_px(expected.max(o.distance));
         let moving = self.config.max_object_speed * dt;
         (o.distance - expected).abs() <= DEPTH_SLACK.max(resolution) + moving
             && (o.lateral - track.last.lateral).abs() <= LATERAL_SLACK + moving
@@ -348,11 +352,7 @@ impl Tracker {
             }
             Some(o) => {
                 // Released first: a new run may resume it.
-                let held = confirmed.and_then(|t| self.missed(t));
-                if held.is_none() && confirmed.is_some() {
-                    lost = confirmed;
-                }
-                confirmed = held;
+                confirmed = self.missed_or_lost(confirmed, &mut lost);
                 candidate = Some(match candidate {
                     Some(t) if self.continues(&t, &o) => Track {
                         last: o,
@@ -361,34 +361,24 @@ impl Tracker {
                         judged: t.judged || judged(&o),
                         history: with(t.history, &o),
                     },
-                    _ => match lost.filter(|l| self.resumes(l, &o)) {
-                        Some(l) => {
+                    _ => {
+                        let resumed = lost.filter(|l| self.resumes(l, &o));
+                        if resumed.is_some() {
                             lost = None;
-                            Track {
-                                last: o,
-                                hits: 1,
-                                misses: 0,
-                                judged: l.judged || judged(&o),
-                                history: with(l.history, &o),
-                            }
                         }
-                        None => Track {
+                        Track {
                             last: o,
                             hits: 1,
                             misses: 0,
-                            judged: judged(&o),
-                            history: with(History::default(), &o),
-                        },
-                    },
+                            judged: resumed.is_some_and(|l| l.judged) || judged(&o),
+                            history: with(resumed.map_or_else(History::default, |l| l.history), &o),
+                        }
+                    }
                 });
             }
             None => {
                 candidate = None;
-                let held = confirmed.and_then(|t| self.missed(t));
-                if held.is_none() && confirmed.is_some() {
-                    lost = confirmed;
-                }
-                confirmed = held;
+                confirmed = self.missed_or_lost(confirmed, &mut lost);
             }
         }
         if let Some(t) = candidate
@@ -417,8 +407,7 @@ impl Tracker {
         else {
             return false;
         };
-        let resolution =
-            DEPTH_SLACK_PX * o.distance.powi(2) / self.pixels_per_inverse_depth.max(1e-9);
+        let resolution = DEPTH_SLACK_PX * self.depth_per_px(o.distance);
         (along - expected).abs() <= DEPTH_SLACK.max(resolution) + spread
             && (lateral - was_lateral).abs() <= RESUME_LATERAL
     }
@@ -439,6 +428,15 @@ impl Tracker {
             near,
             ..*o
         }
+    }
+
+    /// [`Tracker::missed`] of `confirmed`; a track it releases becomes `lost`.
+    fn missed_or_lost(&self, confirmed: Option<Track>, lost: &mut Option<Track>) -> Option<Track> {
+        let held = confirmed.and_then(|t| self.missed(t));
+        if held.is_none() && confirmed.is_some() {
+            *lost = confirmed;
+        }
+        held
     }
 
     /// A confirmed track that missed the current frame: held where the vehicle's travel
