@@ -57,6 +57,7 @@ const KEYS: &[(&str, &str, f64)] = &[
     ("perception.obstacle", "min_width", 0.1),
     ("perception.obstacle", "max_ambiguity", 0.5),
     ("perception.obstacle", "corridor_half_width", 1.2),
+    ("perception.obstacle", "watch_half_width", 4.0),
     ("perception.track", "trigger_frames", 2.0),
     ("perception.road", "max_slope", 0.08),
 ];

@@ -522,6 +522,8 @@ impl Recorder {
             candidate_speed_mps: o.tracked.motion.map(|m| m.speed),
             candidate_speed_sigma: o.tracked.motion.map(|m| m.speed_sigma),
             obstacle_speed_mps: input.obstacle.map(|_| input.credited()),
+            candidate_lateral_speed_mps: o.tracked.motion.map(|m| m.lateral_speed),
+            entering_s: o.tracked.entering,
         };
         let obstacle = candidate.map(|c| [c.distance, c.lateral, c.bottom, c.top]);
         self.perception(event, obstacle, o.tracked.confirmed);

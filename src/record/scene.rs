@@ -322,6 +322,8 @@ mod tests {
             candidate_speed_mps: None,
             candidate_speed_sigma: None,
             obstacle_speed_mps: None,
+            candidate_lateral_speed_mps: None,
+            entering_s: None,
         }
     }
 

@@ -250,6 +250,14 @@ pub struct PerceptionEvent {
     /// without a confirmed obstacle (and in recordings made before it).
     #[serde(default)]
     pub obstacle_speed_mps: Option<f64>,
+    /// How the candidate moves across the path, m/s (positive right); None as its speed.
+    #[serde(default)]
+    pub candidate_lateral_speed_mps: Option<f64>,
+    /// The candidate is beside the corridor, predicted to enter it in this many seconds
+    /// before the vehicle has passed (`flyd_core::perception::crossing`); None: it is in the
+    /// corridor (and in recordings made before it).
+    #[serde(default)]
+    pub entering_s: Option<f64>,
 }
 
 impl PerceptionEvent {
@@ -276,6 +284,8 @@ impl PerceptionEvent {
         ("candidate_speed_mps", OPT_NUM),
         ("candidate_speed_sigma", OPT_NUM),
         ("obstacle_speed_mps", OPT_NUM),
+        ("candidate_lateral_speed_mps", OPT_NUM),
+        ("entering_s", OPT_NUM),
     ];
 }
 

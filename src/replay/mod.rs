@@ -216,6 +216,8 @@ pub struct TraceRow {
     pub stats: GenerationStats,
     pub road: RoadEstimate,
     pub tracked: Tracked,
+    /// Beside the corridor, left and right ([`flyd_core::perception::crossing`]).
+    pub watched: [Tracked; 2],
     pub corridor: CorridorCounts,
     pub command: Command,
     pub reason: CommandReason,
@@ -440,6 +442,7 @@ pub fn run(feed: &mut dyn FrameFeed, mut settings: Settings) -> Result<Replay, R
             stats: report.stats,
             road: report.road,
             tracked: report.tracked,
+            watched: report.watched,
             corridor: report.corridor,
             command: decision.map_or(decision_step.command(), |d| d.command),
             reason: decision.map_or(CommandReason::FaultFallback, |d| d.reason),

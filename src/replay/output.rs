@@ -80,18 +80,21 @@ visible,road_source,road_height,road_pitch_deg,road_roll_deg,road_inliers,corrid
 unique_flies,obstacle,obstacle_confirmed,obstacle_distance,obstacle_near,obstacle_lateral,\
 obstacle_bottom,obstacle_top,obstacle_flies,obstacle_confidence,command,reason,time_us,matched,sensor_faults,\
 left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh,\
-search_far_m,obstacle_speed,obstacle_speed_sigma,obstacle_motion_established,obstacle_credited_speed";
+search_far_m,obstacle_speed,obstacle_speed_sigma,obstacle_motion_established,obstacle_credited_speed,\
+obstacle_lateral_speed,obstacle_entering_s,watch_left_distance,watch_left_lateral,\
+watch_left_lateral_speed,watch_right_distance,watch_right_lateral,watch_right_lateral_speed";
 
 /// One row of `trace.csv` (no newline).
 fn trace_line(r: &TraceRow) -> String {
     let road = &r.road;
     let o = r.tracked.obstacle;
+    let [left, right] = r.watched;
     let num = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.3}"));
     let [l, rh] = r.health;
     let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
         "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
-         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1},{},{},{},{:.3}",
+         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1},{},{},{},{:.3},{},{},{},{},{},{},{},{}",
         r.stats.generation,
         r.frame,
         r.frame_name,
@@ -135,6 +138,14 @@ fn trace_line(r: &TraceRow) -> String {
             .motion
             .map_or(String::new(), |m| (m.established as u8).to_string()),
         r.tracked.decision_speed(),
+        num(r.tracked.motion.map(|m| m.lateral_speed)),
+        num(r.tracked.entering),
+        num(left.confirmed().map(|o| o.near)),
+        num(left.confirmed().map(|o| o.lateral)),
+        num(left.motion.map(|m| m.lateral_speed)),
+        num(right.confirmed().map(|o| o.near)),
+        num(right.confirmed().map(|o| o.lateral)),
+        num(right.motion.map(|m| m.lateral_speed)),
     )
 }
 

@@ -16,12 +16,8 @@ fn trace(warnings: &[f64], frames_from: u64) -> Vec<TraceRow> {
                 ..GenerationStats::default()
             },
             road: RoadEstimate::prior(RoadPlane::FLAT),
-            tracked: Tracked {
-                obstacle: None,
-                confirmed: false,
-                seen_frames: 0,
-                motion: None,
-            },
+            tracked: Tracked::NONE,
+            watched: [Tracked::NONE; 2],
             corridor: CorridorCounts::default(),
             speed: 0.0,
             search_far: 40.0,

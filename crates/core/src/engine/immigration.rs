@@ -15,7 +15,7 @@ use super::fitness::{Kernel, Matches, Scratch};
 use super::lists::gather;
 use super::params::EngineParams;
 use super::projector::Projector;
-use super::sampler::{SAMPLE_ATTEMPTS, Sampler, lerp, unit_f32};
+use super::sampler::{Corridor, SAMPLE_ATTEMPTS, Sampler, lerp, unit_f32};
 use super::sharing::Grid;
 use crate::isa::Isa;
 use rand::Rng;
@@ -199,18 +199,34 @@ impl Immigration {
         } else {
             from + ctx.params.focus_immigrants()
         };
-        let scanning = match ctx.sampler.corridor {
-            Some(_) => focused + ctx.params.corridor_immigrants(),
-            None => focused,
+        // Then those that scan the bands watched beside it (none without them).
+        let (in_corridor, watching) = match ctx.sampler.corridor {
+            Some(c) => (
+                focused + ctx.params.corridor_immigrants(),
+                if c.watch_half_width > c.half_width {
+                    ctx.params.watch_immigrants()
+                } else {
+                    0
+                },
+            ),
+            None => (focused, 0),
         };
+        let scanning = in_corridor + watching;
+        // Where a watch immigrant's ray is probed: across the corridor and both bands.
+        let wide = ctx.sampler.corridor.map(|c| Corridor {
+            half_width: c.watch_half_width.max(c.half_width),
+            ..c
+        });
         for i in from..pop.len() {
             let focus = i < focused;
             let scan = !focus && i < scanning;
-            // A corridor immigrant's block: where a point drawn in the corridor is seen.
-            // Near the vehicle much of the corridor is outside the image: drawn again.
+            let beside = i >= in_corridor;
+            // A corridor immigrant's block: where a point drawn in the corridor (or beside
+            // it) is seen. Near the vehicle much of the corridor is outside the image: drawn
+            // again.
             let scanned = if scan {
                 (0..SAMPLE_ATTEMPTS).find_map(|_| {
-                    let (p, along) = ctx.sampler.corridor_point(rng)?;
+                    let (p, along) = ctx.sampler.corridor_point(rng, beside)?;
                     let (u, v) = ctx.left.project(p[0], p[1], p[2])?;
                     Some((Self::block_of(ctx, u, v)?, along))
                 })
@@ -243,7 +259,8 @@ impl Immigration {
                 };
                 let ray = Self::strongest_in_block(ctx, rng, b);
                 let range = |xn: f32, yn: f32| {
-                    if let (Some((_, along)), Some(c)) = (scanned, &ctx.sampler.corridor) {
+                    let box_of = if beside { &wide } else { &ctx.sampler.corridor };
+                    if let (Some((_, along)), Some(c)) = (scanned, box_of) {
                         return ctx.sampler.ray_range_in_corridor(xn, yn, c, along);
                     }
                     let (lo, hi) = ctx.sampler.ray_range(xn, yn)?;

@@ -77,6 +77,14 @@ pub struct EngineParams {
     /// could go unvisited until a fly happened on it. Part of the `immigration_rate` (at most
     /// a quarter of the immigrants are); 0..=64, 0: none.
     pub corridor_immigrants: u32,
+    /// Immigrants per generation that scan the zones watched beside the corridor (a
+    /// corridor with a `watch_half_width`, [`super::Corridor`]) as the corridor immigrants
+    /// scan the corridor: a point drawn uniformly in the band either side of it. Beside the
+    /// corridor the roadside's strong textures hold the flies, and a pedestrian 3 m beside
+    /// the lane 17 m ahead had none (hw-mock's Euro NCAP CPNA case at 30 km/h): seen only once
+    /// in the corridor, too late to stop ([`crate::perception::crossing`]). Part of the
+    /// `immigration_rate` (at most a quarter of the immigrants are); 0..=64, 0: none.
+    pub watch_immigrants: u32,
     /// How far ahead the corridor immigrants scan, metres (and never beyond the obstacle
     /// stage's `max_distance`): where a missed obstacle means STOP. With the decision's
     /// defaults STOP reaches 23 m ahead at 40 km/h. Farther, the flies find obstacles as the
@@ -143,6 +151,7 @@ impl Default for EngineParams {
             immigrant_probes: 32,
             focus_immigrants: 16,
             corridor_immigrants: 8,
+            watch_immigrants: 8,
             corridor_scan_distance: 25.0,
             local_mating: 1.0,
             guided_breeding: 0.75,
@@ -211,6 +220,7 @@ impl EngineParams {
         for (key, v) in [
             ("focus_immigrants", self.focus_immigrants),
             ("corridor_immigrants", self.corridor_immigrants),
+            ("watch_immigrants", self.watch_immigrants),
         ] {
             if v > 64 {
                 return err(key, format!("must be within 0..=64, got {v}"));
@@ -343,6 +353,12 @@ impl EngineParams {
     pub fn corridor_immigrants(&self) -> usize {
         (self.corridor_immigrants as usize).min(self.immigrants() / 4)
     }
+
+    /// The watch immigrants a generation draws when the corridor has watch zones:
+    /// `watch_immigrants`, at most a quarter of the immigrants.
+    pub fn watch_immigrants(&self) -> usize {
+        (self.watch_immigrants as usize).min(self.immigrants() / 4)
+    }
 }
 
 #[cfg(test)]
@@ -375,6 +391,7 @@ mod tests {
         check(|p| p.breeding_tournament = 65, "breeding_tournament");
         check(|p| p.focus_immigrants = 65, "focus_immigrants");
         check(|p| p.corridor_immigrants = 65, "corridor_immigrants");
+        check(|p| p.watch_immigrants = 65, "watch_immigrants");
         check(|p| p.corridor_scan_distance = 0.5, "corridor_scan_distance");
         check(
             |p| p.corridor_scan_distance = f64::NAN,

@@ -47,6 +47,9 @@ pub struct Corridor {
     /// The path's curvature, 1/m, positive turning left ([`crate::path::PredictedPath`]);
     /// 0: the straight box ahead.
     pub curvature: f32,
+    /// Beside it, out to this far off the path either side, the watch immigrants scan
+    /// ([`super::EngineParams::watch_immigrants`]); at most `half_width`: none.
+    pub watch_half_width: f32,
 }
 
 impl Corridor {
@@ -197,12 +200,27 @@ impl Sampler {
 
     /// A vehicle-frame point uniform in the corridor (across the path, in height above the
     /// road, and along it from the search range's nearest depth), with its distance along the
-    /// path; `None` without a corridor.
+    /// path; `None` without a corridor. `beside`: in the band watched either side of it
+    /// instead (`None` without one).
     #[inline]
-    pub(super) fn corridor_point<R: Rng>(&self, rng: &mut R) -> Option<([f32; 3], f32)> {
+    pub(super) fn corridor_point<R: Rng>(
+        &self,
+        rng: &mut R,
+        beside: bool,
+    ) -> Option<([f32; 3], f32)> {
         let c = self.corridor?;
         let r = rng.next_u64();
-        let offset = lerp((-c.half_width, c.half_width), unit_f32(r as u32));
+        let offset = if beside {
+            if c.watch_half_width <= c.half_width {
+                return None;
+            }
+            // Either side, uniform across the band: the sign from the draw's lowest bit.
+            let u = unit_f32(r as u32);
+            let side = if r & 1 == 0 { 1.0 } else { -1.0 };
+            side * lerp((c.half_width, c.watch_half_width), u)
+        } else {
+            lerp((-c.half_width, c.half_width), unit_f32(r as u32))
+        };
         let along = lerp(
             (1.0 / self.inv_depth.1, c.max_distance),
             unit_f32((r >> 32) as u32),

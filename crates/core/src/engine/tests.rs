@@ -1122,6 +1122,7 @@ fn corridor_immigrants_probe_the_corridor() {
         max_height: 1.6,
         max_distance: 10.0,
         curvature: 0.0,
+        watch_half_width: 0.0,
     };
     let run = |n: u32, scan: Option<Corridor>| {
         let mut e = Engine::new(
@@ -1190,6 +1191,78 @@ fn corridor_immigrants_probe_the_corridor() {
     assert!(2 * found >= reach, "{found} of {reach} on the wall");
 }
 
+/// Watch immigrants scan the bands beside the corridor: their points lie between its
+/// half-width and the watch's, on both sides; with no band (or none drawn) the population is
+/// the one without them, bit for bit.
+#[test]
+fn watch_immigrants_scan_beside_the_corridor() {
+    let rig = rig();
+    let frame = wall_frame(&rig, 6.0, 3, 1);
+    let corridor = Corridor {
+        half_width: 0.6,
+        min_height: 0.4,
+        max_height: 1.6,
+        max_distance: 10.0,
+        curvature: 0.0,
+        watch_half_width: 2.0,
+    };
+    let run = |n: u32, scan: Corridor| {
+        let mut e = Engine::new(
+            &rig,
+            EngineParams {
+                corridor_immigrants: 8,
+                watch_immigrants: n,
+                ..params(1600, 5)
+            },
+        )
+        .expect("engine");
+        e.set_corridor(Some(scan));
+        for _ in 0..4 {
+            e.step(&frame).expect("step");
+        }
+        e
+    };
+    let without = Corridor {
+        watch_half_width: 0.0,
+        ..corridor
+    };
+    assert_eq!(
+        population_bits(&run(0, corridor)),
+        population_bits(&run(16, without)),
+        "no band"
+    );
+    let e = run(16, corridor);
+    assert_ne!(population_bits(&run(0, corridor)), population_bits(&e));
+    // The points drawn: in the bands, both of them, never in the corridor.
+    let sampler = &e.setup.sampler;
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let (mut left, mut right) = (0, 0);
+    for _ in 0..400 {
+        let (p, along) = sampler.corridor_point(&mut rng, true).expect("a band");
+        assert!(
+            (0.6 - 1e-3..=2.0 + 1e-3).contains(&p[0].abs()),
+            "{p:?} is not in a band"
+        );
+        assert!(
+            (p[2] - along).abs() < 1e-4 && along <= 10.0,
+            "{p:?} {along}"
+        );
+        left += usize::from(p[0] < 0.0);
+        right += usize::from(p[0] > 0.0);
+    }
+    assert!(left > 150 && right > 150, "{left} left, {right} right");
+    // The immigrants drawn in a band lie in it, as far as their ray crosses it.
+    let p = e.population();
+    let from = p.len() - e.params().immigrants() + 8;
+    let beside = (from..from + 16)
+        .filter(|&i| (0.6 - 1e-3..=2.0 + 1e-3).contains(&p.x[i].abs()))
+        .count();
+    assert!(beside >= 8, "{beside} of 16 beside the corridor");
+    let mut e = Engine::new(&rig, params(200, 5)).expect("engine");
+    e.set_corridor(Some(without));
+    assert!(e.setup.sampler.corridor_point(&mut rng, true).is_none());
+}
+
 /// A corridor along a bend: its points lie within its half-width of the path (along it from
 /// the nearest depth searched to its length), and a ray through one of them is probed over a
 /// range that holds that point.
@@ -1203,6 +1276,7 @@ fn a_curved_corridor_is_scanned_along_its_path() {
         max_height: 1.6,
         max_distance: 10.0,
         curvature: 0.08,
+        watch_half_width: 0.0,
     };
     e.set_corridor(Some(corridor));
     let path = crate::path::PredictedPath::arc(0.08);
@@ -1210,7 +1284,7 @@ fn a_curved_corridor_is_scanned_along_its_path() {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
     let (mut left_of_straight, mut probed) = (0, 0);
     for _ in 0..500 {
-        let (p, along) = sampler.corridor_point(&mut rng).expect("a corridor");
+        let (p, along) = sampler.corridor_point(&mut rng, false).expect("a corridor");
         let (a, off) = path.locate(p[0], p[2]);
         assert!(off.abs() <= 0.6 + 1e-3, "{p:?}: {off} off the path");
         assert!(

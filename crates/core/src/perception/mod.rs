@@ -10,6 +10,7 @@
 //!
 //! Pure, like the engine: frames in, values out; no allocation per step.
 
+pub mod crossing;
 pub mod dense;
 pub mod motion;
 pub mod obstacle;
@@ -129,8 +130,12 @@ pub struct PerceptionReport {
     pub stats: GenerationStats,
     /// The road the heights are measured from.
     pub road: RoadEstimate,
-    /// The debounced obstacle (see [`Tracker`]).
+    /// The debounced obstacle (see [`Tracker`]): the corridor's, or one beside it predicted
+    /// to enter it ([`crossing`]).
     pub tracked: Tracked,
+    /// The nearest obstacle watched beside the corridor, left and right ([`crossing`];
+    /// nothing without watch zones).
+    pub watched: [Tracked; 2],
     /// What the latest obstacle estimate looked at.
     pub corridor: CorridorCounts,
     /// Whether this step ran the obstacle stage.
@@ -168,6 +173,20 @@ pub struct Perception {
     /// The corridor the corridor immigrants scan (none without a road); it bends with the
     /// held path.
     corridor: Option<Corridor>,
+    /// The zones beside the corridor, left and right ([`crossing`]); none with
+    /// `obstacle.watch_half_width = 0`.
+    watch: Vec<Watch>,
+    /// The vehicle's speed over the current frame, and over the next, m/s, as its trusted
+    /// motion gave it (none: not known).
+    speed: Option<f64>,
+    pending_speed: Option<f64>,
+}
+
+/// A zone beside the corridor: its finder, its tracker and their latest verdict.
+struct Watch {
+    finder: ObstacleFinder,
+    tracker: Tracker,
+    tracked: Tracked,
 }
 
 impl Perception {
@@ -192,35 +211,41 @@ impl Perception {
                 max_height: o.max_height as f32,
                 max_distance: o.max_distance.min(scan) as f32,
                 curvature: 0.0,
+                watch_half_width: o.watch_half_width as f32,
             }
         });
         engine.set_corridor(corridor);
         let prior = RoadPlane::FLAT;
         let fb = rig.right.intrinsics().fx * rig.baseline();
         let far = search_far(engine.params(), &config.obstacle);
+        let judgeable = judgeable_distance(rig, &config.obstacle, params_min_depth);
+        let image = (rig.left.width(), rig.left.height());
+        let (inner, outer) = (
+            config.obstacle.corridor_half_width,
+            config.obstacle.watch_half_width,
+        );
+        let watch = if outer > inner {
+            [(-outer, -inner), (inner, outer)]
+                .into_iter()
+                .map(|(lo, hi)| Watch {
+                    finder: ObstacleFinder::new(config.obstacle, flies, fb, image).watching(lo, hi),
+                    tracker: Tracker::new(config.track, judgeable, fb),
+                    tracked: Tracked::NONE,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Ok(Self {
             engine,
             road: RoadEstimator::new(config.road, prior),
-            finder: ObstacleFinder::new(
-                config.obstacle,
-                flies,
-                fb,
-                (rig.left.width(), rig.left.height()),
-            ),
-            tracker: Tracker::new(
-                config.track,
-                judgeable_distance(rig, &config.obstacle, params_min_depth),
-                fb,
-            ),
+            finder: ObstacleFinder::new(config.obstacle, flies, fb, image),
+            tracker: Tracker::new(config.track, judgeable, fb),
             report: PerceptionReport {
                 stats: GenerationStats::default(),
                 road: RoadEstimate::prior(prior),
-                tracked: Tracked {
-                    obstacle: None,
-                    confirmed: false,
-                    seen_frames: 0,
-                    motion: None,
-                },
+                tracked: Tracked::NONE,
+                watched: [Tracked::NONE; 2],
                 corridor: CorridorCounts::default(),
                 estimated: false,
             },
@@ -232,6 +257,9 @@ impl Perception {
             search_far: far,
             fb,
             corridor,
+            watch,
+            speed: None,
+            pending_speed: None,
             config,
             warmup: 0,
             predicted_path: None,
@@ -314,6 +342,9 @@ impl Perception {
         let moving = moving_region(&self.report.tracked, dt);
         self.engine.predict_around(motion, dt, moving);
         self.tracker.moved(motion.speed * dt, dt);
+        for w in &mut self.watch {
+            w.tracker.moved(motion.speed * dt, dt);
+        }
         self.follow(motion, dt);
     }
 
@@ -326,6 +357,7 @@ impl Perception {
         }
         self.pending_reach = self.reach.map(|r| r.at(motion.speed));
         self.pending_fan = None;
+        self.pending_speed = Some(motion.speed);
     }
 
     /// The vehicle's motion is configured but not trusted before the next frame (a motion
@@ -343,6 +375,7 @@ impl Perception {
         });
         self.predicted_path = None;
         self.pending_reach = None;
+        self.pending_speed = None;
     }
 
     /// The vehicle's motion over the `dt` seconds before the next frame, as the daemon and
@@ -411,6 +444,10 @@ impl Perception {
             }
             let path = self.followed.unwrap_or(PathEstimate::STRAIGHT);
             self.finder.set_paths(path.held, path.now);
+            for w in &mut self.watch {
+                w.finder.set_paths(path.held, path.now);
+            }
+            self.speed = self.pending_speed.take();
             // The corridor immigrants scan along the held path (the straight box on a fan,
             // which the fan holds).
             if let Some(c) = self.corridor.as_mut() {
@@ -426,12 +463,18 @@ impl Perception {
             }
             if let Some(k) = self.pending_fan.take() {
                 self.finder.set_fan(k);
+                for w in &mut self.watch {
+                    w.finder.set_fan(k);
+                }
             }
             if self.reach.is_some() {
                 let far = self.pending_reach.take().unwrap_or(0.0);
                 self.engine.set_reach(far);
                 let o = &self.config.obstacle;
                 self.finder.set_max_distance(o.max_distance.max(far));
+                for w in &mut self.watch {
+                    w.finder.set_max_distance(o.max_distance.max(far));
+                }
                 self.search_far = search_far(self.engine.params(), self.finder.config());
             }
         }
@@ -473,7 +516,21 @@ impl Perception {
             if self.engine.params().roi.is_some() {
                 self.engine.set_focus(self.finder.unique_pixels());
             }
-            self.report.tracked = self.tracker.update(frame.id, seen);
+            let tracked = self.tracker.update(frame.id, seen);
+            // Beside the corridor, once a frame: who may step into it.
+            if stats.new_frame {
+                for (w, shown) in self.watch.iter_mut().zip(&mut self.report.watched) {
+                    let seen = w.finder.find(&mut self.engine, frame, &road)?;
+                    w.tracked = w.tracker.update(frame.id, seen);
+                    *shown = w.tracked;
+                }
+            }
+            self.report.tracked = crossing::nearest_in_path(
+                tracked,
+                self.watch.iter().map(|w| w.tracked),
+                self.config.obstacle.corridor_half_width,
+                self.speed,
+            );
             self.report.corridor = self.finder.counts();
             self.report.estimated = true;
         }

@@ -148,6 +148,7 @@ mod tests {
             confirmed: true,
             seen_frames: 12,
             motion,
+            entering: None,
         }
     }
 

@@ -20,6 +20,9 @@ pub enum PathKind {
 pub struct ObstacleConfig {
     /// Half-width of the corridor the vehicle sweeps: its half-width plus a margin, metres.
     pub corridor_half_width: f64,
+    /// Beside the corridor, out to this far off the path either side, metres, obstacles are
+    /// watched for one that walks or drives into it ([`crate::perception::crossing`]); 0: none.
+    pub watch_half_width: f64,
     /// Lower bound of an obstacle's fly above the road, metres: below is road (and what a
     /// vehicle drives over: kerbs, cat's eyes).
     pub min_height: f64,
@@ -111,6 +114,7 @@ impl Default for ObstacleConfig {
     fn default() -> Self {
         Self {
             corridor_half_width: 1.2,
+            watch_half_width: 4.0,
             follow_path: true,
             path_hold_s: 2.0,
             path_model: PathKind::ClothoidGated,
@@ -243,6 +247,20 @@ impl ObstacleConfig {
             self.corridor_half_width,
             0.5,
             3.0,
+        )?;
+        PerceptionParamError::check(
+            "obstacle.watch_half_width",
+            self.watch_half_width == 0.0
+                || (self.watch_half_width.is_finite()
+                    && self.watch_half_width >= self.corridor_half_width + 0.5
+                    && self.watch_half_width <= 8.0),
+            || {
+                format!(
+                    "must be 0 (no watch) or within corridor_half_width + 0.5 ({})..=8, got {}",
+                    self.corridor_half_width + 0.5,
+                    self.watch_half_width
+                )
+            },
         )?;
         within("obstacle.min_height", self.min_height, 0.0, 1.0)?;
         within("obstacle.max_height", self.max_height, 1.0, 5.0)?;

@@ -137,6 +137,9 @@ pub struct ObstacleFinder {
     /// Instead of the path: the fan of every path up to this curvature either way, 1/m
     /// (a motion fault: [`ObstacleConfig::fault_yaw_rate`]).
     fan: Option<f64>,
+    /// Instead of the corridor: the flies this far off the path, metres (signed, positive
+    /// right; [`ObstacleFinder::watching`]); none on a fan.
+    band: Option<(f32, f32)>,
     /// Disparity (pixels) per m^-1 of inverse depth: f B.
     pixels_per_inverse_depth: f64,
     /// The sampled flies (what the stage needs of each, read once from the population) and
@@ -214,6 +217,7 @@ impl ObstacleFinder {
             path: PredictedPath::STRAIGHT,
             gate: PredictedPath::STRAIGHT,
             fan: None,
+            band: None,
             pixels_per_inverse_depth,
             sample: Vec::with_capacity(SAMPLE_PER_CANDIDATE * k),
             ambiguity: vec![0.0; SAMPLE_PER_CANDIDATE * k],
@@ -238,6 +242,22 @@ impl ObstacleFinder {
 
     pub fn config(&self) -> &ObstacleConfig {
         &self.config
+    }
+
+    /// This finder looks beside the corridor instead of in it: at the flies from `inner` to
+    /// `outer` metres off the path (signed, positive right: `1.2, 4.0` is the band right of
+    /// a 1.2 m half-width corridor), everything else as in the corridor; on a fan (an
+    /// untrusted motion) it finds nothing. What [`super::crossing`] watches.
+    pub fn watching(self, inner: f64, outer: f64) -> Self {
+        let (lo, hi) = if inner <= outer {
+            (inner, outer)
+        } else {
+            (outer, inner)
+        };
+        Self {
+            band: Some((lo as f32, hi as f32)),
+            ..self
+        }
     }
 
     /// The corridor follows `path` from the next [`ObstacleFinder::find`] on: a fly's
@@ -299,9 +319,18 @@ impl ObstacleFinder {
         road: &RoadPlane,
     ) -> Result<Option<Obstacle>, EngineError> {
         let c = self.config;
+        if self.band.is_some() && self.fan.is_some() {
+            self.unique.clear();
+            self.counts = CorridorCounts::default();
+            return Ok(None);
+        }
         let pop = engine.population();
+        // The band off the path a fly must be in: the corridor, or the one watched.
+        let (band_lo, band_hi) = self
+            .band
+            .unwrap_or((-c.corridor_half_width as f32, c.corridor_half_width as f32));
         let (half, lo, hi, far) = (
-            c.corridor_half_width as f32,
+            band_lo.abs().max(band_hi.abs()),
             c.min_height as f32,
             c.max_height as f32,
             c.max_distance as f32,
@@ -350,7 +379,9 @@ impl ObstacleFinder {
                 let (along, off) = crate::path::nearest_in_fan(k, x, z).locate(x, z);
                 (off.abs() <= half).then_some((along, off))
             } else {
-                paths.locate_in(x, z, half)
+                paths
+                    .locate_in(x, z, half)
+                    .filter(|&(_, off)| (band_lo..=band_hi).contains(&off))
             };
             let inside = i < immigrants_from
                 && pop.raw_fitness[i] > 0.0

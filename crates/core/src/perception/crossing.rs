@@ -1,0 +1,190 @@
+//! Who may step into the corridor: obstacles beside it that move towards it.
+//!
+//! The corridor's obstacle stage sees a pedestrian crossing from the side only once they stand
+//! in it: on hw-mock's Euro NCAP CPNA-25 at 30 km/h, 0.5 s before the impact, when no braking
+//! can stop the vehicle (the STOP reach is 14.9 m, the pedestrian steps in 6 m ahead). So two
+//! zones are watched, one either side of the corridor out to
+//! [`super::ObstacleConfig::watch_half_width`] (the flies' region of interest reaches 4 m),
+//! each with its own obstacle finder ([`super::ObstacleFinder::watching`]) and tracker: the
+//! nearest obstacle there and how it moves across ([`super::motion`]).
+//!
+//! A watched obstacle **enters** ([`entry`]) when its motion across is established (as the
+//! motion along the path is: [`super::motion::MIN_SAMPLES`] sightings over
+//! [`super::motion::MIN_SPAN`], a standard error of at most [`super::motion::MAX_SIGMA`]) and
+//! surely towards the corridor (its speed across less [`CREDIT_SIGMAS`] standard errors is
+//! positive: a parked car, a post, a pedestrian walking along the kerb never enter); it is
+//! predicted to reach the corridor's edge after `gap / (speed + 2 sigma)` seconds, the earliest
+//! its motion allows. It is **in the path** ([`in_path`]) when that is before the vehicle, at
+//! its speed, has passed it: its arrival at the obstacle's near distance plus
+//! [`PASSING_S`]. Then the decision takes it as it takes an obstacle in the corridor, at its
+//! near distance, with the speed along the path its track shows (Euro NCAP's AEB systems
+//! brake for a pedestrian on a collision course before they enter the path; Autoware's AEB
+//! checks each object's predicted path against the ego's).
+//!
+//! The price: a pedestrian who walks towards the road and stops at its kerb is braked for
+//! until they stop (`pedestrian-stops-at-kerb`), as a driver would lift off.
+
+use super::motion::{MAX_SIGMA, MIN_SAMPLES, MIN_SPAN};
+use super::track::{CREDIT_SIGMAS, Tracked};
+
+/// Seconds after the vehicle's front reaches a crossing obstacle's distance that it still
+/// occupies that line (a car's length at 30 km/h is 0.5 s), and the prediction's slack.
+pub const PASSING_S: f64 = 1.0;
+
+/// Below this speed, m/s, the vehicle is taken as never passing anything: whatever enters
+/// is in its path.
+const CREEPING: f64 = 0.1;
+
+/// In how many seconds the confirmed obstacle of `watched`, beside a corridor of
+/// `half_width` metres either side of the path, may enter it (0: it is at its edge); none
+/// unless its motion across is established and surely towards the corridor.
+pub fn entry(watched: &Tracked, half_width: f64) -> Option<f64> {
+    let o = watched.confirmed()?;
+    let m = watched.motion?;
+    let established = m.samples as usize >= MIN_SAMPLES
+        && m.span >= MIN_SPAN
+        && m.lateral_sigma.is_finite()
+        && m.lateral_sigma <= MAX_SIGMA;
+    if !(established && o.lateral.is_finite() && o.lateral != 0.0) {
+        return None;
+    }
+    // Towards the path: against the sign of the offset.
+    let towards = -o.lateral.signum() * m.lateral_speed;
+    let spread = CREDIT_SIGMAS * m.lateral_sigma;
+    if !(towards - spread > 0.0) {
+        return None;
+    }
+    let gap = (o.lateral.abs() - half_width).max(0.0);
+    Some(gap / (towards + spread))
+}
+
+/// Whether an obstacle `near` metres ahead that enters the corridor in `entry_s` seconds is
+/// in the path of a vehicle at `speed` m/s (none: not known; taken as never passing): it
+/// enters before the vehicle has passed it.
+pub fn in_path(entry_s: f64, near: f64, speed: Option<f64>) -> bool {
+    match speed.filter(|v| v.is_finite() && *v > CREEPING) {
+        Some(v) => entry_s <= near.max(0.0) / v + PASSING_S,
+        None => true,
+    }
+}
+
+/// The obstacle the decision takes: the corridor's confirmed one, or the nearer of the
+/// watched ones in the path (its [`Tracked::entering`] set), whichever is nearer.
+pub fn nearest_in_path(
+    corridor: Tracked,
+    watched: impl IntoIterator<Item = Tracked>,
+    half_width: f64,
+    speed: Option<f64>,
+) -> Tracked {
+    let mut best = corridor;
+    for w in watched {
+        let (Some(o), Some(e)) = (w.confirmed(), entry(&w, half_width)) else {
+            continue;
+        };
+        if !in_path(e, o.near, speed) {
+            continue;
+        }
+        if best.decision_distance().is_none_or(|d| o.near < d) {
+            best = Tracked {
+                entering: Some(e),
+                ..w
+            };
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::perception::motion::ObstacleMotion;
+    use crate::perception::obstacle::Obstacle;
+
+    fn watched(near: f64, lateral: f64, lateral_speed: f64, sigma: f64) -> Tracked {
+        Tracked {
+            obstacle: Some(Obstacle {
+                distance: near + 0.5,
+                near,
+                lateral,
+                bottom: 0.1,
+                top: 1.7,
+                flies: 20,
+                cells: 9,
+                confidence: 60.0,
+            }),
+            confirmed: true,
+            seen_frames: 12,
+            motion: Some(ObstacleMotion {
+                speed: 0.0,
+                speed_sigma: 0.8,
+                lateral_speed,
+                lateral_sigma: sigma,
+                samples: 12,
+                span: 0.4,
+                established: true,
+            }),
+            entering: None,
+        }
+    }
+
+    #[test]
+    fn a_pedestrian_walking_towards_the_corridor_enters_it_at_the_earliest_their_motion_allows() {
+        // 3.2 m right of the path, walking left at 1.39 m/s (5 km/h), known within 0.2 m/s:
+        // 2.0 m to the edge at up to 1.79 m/s.
+        let e = entry(&watched(16.7, 3.2, -1.39, 0.2), 1.2).expect("an entry");
+        assert!((e - 2.0 / 1.79).abs() < 1e-9, "{e}");
+        // From the left, walking right: the same.
+        let e = entry(&watched(16.7, -3.2, 1.39, 0.2), 1.2).expect("an entry");
+        assert!((e - 2.0 / 1.79).abs() < 1e-9, "{e}");
+        // Walking away, along the kerb, or not surely towards: never.
+        assert_eq!(entry(&watched(16.7, 3.2, 1.39, 0.2), 1.2), None);
+        assert_eq!(entry(&watched(16.7, 3.2, 0.0, 0.2), 1.2), None);
+        assert_eq!(entry(&watched(16.7, 3.2, -0.3, 0.2), 1.2), None);
+        // A motion across not established, a track not confirmed: never.
+        let mut few = watched(16.7, 3.2, -1.39, 0.2);
+        few.motion = few.motion.map(|m| ObstacleMotion { samples: 5, ..m });
+        assert_eq!(entry(&few, 1.2), None);
+        let noisy = watched(16.7, 3.2, -1.39, 1.5);
+        assert_eq!(entry(&noisy, 1.2), None);
+        let unconfirmed = Tracked {
+            confirmed: false,
+            ..watched(16.7, 3.2, -1.39, 0.2)
+        };
+        assert_eq!(entry(&unconfirmed, 1.2), None);
+        let nan = watched(16.7, f64::NAN, -1.39, 0.2);
+        assert_eq!(entry(&nan, 1.2), None);
+    }
+
+    #[test]
+    fn it_is_in_the_path_when_it_enters_before_the_vehicle_has_passed() {
+        // 16.7 m ahead at 8.33 m/s (30 km/h): the vehicle is there in 2.0 s, past at 3.0 s.
+        assert!(in_path(1.1, 16.7, Some(8.33)));
+        assert!(in_path(2.9, 16.7, Some(8.33)));
+        assert!(!in_path(3.1, 16.7, Some(8.33)));
+        // Standing or unknown speed: whatever enters.
+        assert!(in_path(100.0, 16.7, Some(0.0)));
+        assert!(in_path(100.0, 16.7, None));
+        assert!(in_path(100.0, 16.7, Some(f64::NAN)));
+    }
+
+    #[test]
+    fn the_decision_takes_the_nearer_of_the_corridors_obstacle_and_who_steps_in() {
+        let crossing = watched(16.7, 3.2, -1.39, 0.2);
+        let none = Tracked::NONE;
+        let t = nearest_in_path(none, [crossing], 1.2, Some(8.33));
+        assert_eq!(t.decision_distance(), Some(16.7));
+        assert!(t.entering.is_some_and(|e| e > 1.0 && e < 1.2), "{t:?}");
+        // A car 10 m ahead in the corridor is nearer: it stays.
+        let car = Tracked {
+            entering: None,
+            ..watched(10.0, 0.2, 0.0, 0.2)
+        };
+        let t = nearest_in_path(car, [crossing], 1.2, Some(8.33));
+        assert_eq!((t.decision_distance(), t.entering), (Some(10.0), None));
+        // 5.5 m aside, ahead of a vehicle at 50 km/h: it is past before they can step in
+        // (4.3 s to the edge at the most likely speed, 3.1 s at the fastest; past in 2.2 s).
+        let early = watched(16.7, 5.5, -1.0, 0.2);
+        let t = nearest_in_path(none, [early], 1.2, Some(13.9));
+        assert_eq!(t.decision_distance(), None, "{t:?}");
+    }
+}
