@@ -51,7 +51,9 @@ pub fn entry(watched: &Tracked, half_width: f64) -> Option<f64> {
     // Towards the path: against the sign of the offset.
     let towards = -o.lateral.signum() * m.lateral_speed;
     let spread = CREDIT_SIGMAS * m.lateral_sigma;
-    if !(towards - spread > 0.0) {
+    // NaN speeds fail this too.
+    let surely_towards = towards - spread > 0.0;
+    if !surely_towards {
         return None;
     }
     let gap = (o.lateral.abs() - half_width).max(0.0);

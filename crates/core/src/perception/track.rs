@@ -668,7 +668,7 @@ mod tests {
             if f > 0 {
                 t.moved(8.0 * dt, dt);
             }
-            let seen = (f < 20 || f >= 50 || f % 3 == 0)
+            let seen = (!(20..50).contains(&f) || f % 3 == 0)
                 .then(|| beside(12.0, 0.3))
                 .flatten();
             let r = t.update(f, seen);
