@@ -256,12 +256,21 @@ fn to_raw_signed(phys: f64, per_unit: f64, field: Field) -> i64 {
     }
 }
 
-/// Raw layout constants. Kept private: the DBC test checks the encoder against
-/// `config/flyd.dbc`, not against these.
+/// The contract's layout, written by `build.rs` from `config/flyd.dbc`: per message its name,
+/// IDs and period, per signal its bits, raw steps per unit and physical bounds. The messages'
+/// files say only which value goes in which signal (tests/dbc.rs checks that they do, against
+/// the DBC itself).
+mod dbc {
+    use super::Field;
+
+    include!(concat!(env!("OUT_DIR"), "/dbc.rs"));
+}
+
 mod layout {
     use super::Field;
 
-    pub const COUNTER: Field = Field { start: 8, len: 4 };
+    /// Every message's `AliveCounter` (the DBC gives it to each; they agree: tests/dbc.rs).
+    pub const COUNTER: Field = super::dbc::flyd_command::ALIVE_COUNTER;
 }
 
 /// Puts the counter in, then the CRC over Data ID + bytes 1..=7 into byte 0.

@@ -582,8 +582,9 @@ mod tests {
         };
         let resumed = run(0.0);
         let m = resumed.motion.expect("a motion");
+        // The sightings of the last 0.6 s (motion::MAX_AGE): 14 of the 15.
         assert!(
-            resumed.confirmed && m.samples == 15 && m.established,
+            resumed.confirmed && m.samples == 14 && m.established,
             "{resumed:?}"
         );
         assert!((m.speed - 8.0).abs() < 0.01, "{m:?}");
@@ -672,7 +673,15 @@ mod tests {
                 .then(|| beside(12.0, 0.3))
                 .flatten();
             let r = t.update(f, seen);
-            if f >= 51 {
+            // Confirmed again on the second frame of the run, with the sightings before it
+            // (the last 0.6 s of them: motion::MAX_AGE), and established on the third.
+            if f == 51 {
+                assert!(
+                    r.confirmed && r.motion.is_some_and(|m| m.samples > 2),
+                    "{r:?}"
+                );
+            }
+            if f >= 52 {
                 assert!(r.confirmed && r.decision_speed() > 7.0, "frame {f}: {r:?}");
             }
         }

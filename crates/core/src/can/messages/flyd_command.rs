@@ -9,16 +9,7 @@ use super::{
 use crate::decision::{Command, CommandReason, Decision};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
-mod layout {
-    use super::super::Field;
-
-    pub const COMMAND: Field = Field { start: 12, len: 4 };
-    pub const DECEL: Field = Field { start: 16, len: 16 };
-    pub const DECEL_PER_UNIT: f64 = 100.0;
-    pub const WARNING: Field = Field { start: 32, len: 16 };
-    pub const WARNING_PER_UNIT: f64 = 1000.0;
-    pub const REASON: Field = Field { start: 48, len: 4 };
-}
+use super::dbc::flyd_command as layout;
 
 /// `FLYD_Command`: the request to the vehicle.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,47 +40,56 @@ impl CommandMsg {
 }
 
 impl CanMessage for CommandMsg {
-    const NAME: &'static str = "FLYD_Command";
-    const DEFAULT_ID: u32 = 0x120;
-    const DEFAULT_DATA_ID: u16 = 0x0120;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
         let mut w = 0u64;
         COMMAND.put(&mut w, u64::from(self.command.raw()));
-        DECEL.put(
+        REQUESTED_DECEL.put(
             &mut w,
             to_raw_unsigned(
                 self.requested_decel,
-                DECEL_PER_UNIT,
-                DECEL.max_unsigned(),
+                REQUESTED_DECEL_PER_UNIT,
+                REQUESTED_DECEL.max_unsigned(),
                 0,
             ),
         );
         let invalid = u64::from(Self::GLOBAL_WARNING_INVALID_RAW);
-        WARNING.put(
+        GLOBAL_WARNING.put(
             &mut w,
-            to_raw_unsigned(self.global_warning, WARNING_PER_UNIT, invalid - 1, invalid),
+            to_raw_unsigned(
+                self.global_warning,
+                GLOBAL_WARNING_PER_UNIT,
+                invalid - 1,
+                invalid,
+            ),
         );
-        REASON.put(&mut w, u64::from(self.reason.raw()));
+        COMMAND_REASON.put(&mut w, u64::from(self.reason.raw()));
         seal(w, counter, data_id)
     }
 
     fn decode_with(data: &[u8], data_id: u16) -> Result<(Self, AliveCounter), DecodeError> {
         use layout::*;
         let (w, counter) = unseal(data, data_id)?;
-        let warning_raw = WARNING.get(w);
+        let warning_raw = GLOBAL_WARNING.get(w);
         let global_warning = if warning_raw == u64::from(Self::GLOBAL_WARNING_INVALID_RAW) {
             f64::NAN
         } else {
-            warning_raw as f64 / WARNING_PER_UNIT
+            warning_raw as f64 / GLOBAL_WARNING_PER_UNIT
         };
         let msg = Self {
-            command: decode_enum(COMMAND.get(w), "Command", Command::from_raw)?,
-            requested_decel: DECEL.get(w) as f64 / DECEL_PER_UNIT,
+            command: decode_enum(COMMAND.get(w), COMMAND_NAME, Command::from_raw)?,
+            requested_decel: REQUESTED_DECEL.get(w) as f64 / REQUESTED_DECEL_PER_UNIT,
             global_warning,
-            reason: decode_enum(REASON.get(w), "CommandReason", CommandReason::from_raw)?,
+            reason: decode_enum(
+                COMMAND_REASON.get(w),
+                COMMAND_REASON_NAME,
+                CommandReason::from_raw,
+            )?,
         };
         Ok((msg, counter))
     }

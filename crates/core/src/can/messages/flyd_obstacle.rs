@@ -9,20 +9,7 @@ use super::{
 use crate::perception::{RoadEstimate, Tracked};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
-mod layout {
-    use super::super::Field;
-
-    pub const VALID: Field = Field { start: 12, len: 1 };
-    pub const DISTANCE: Field = Field { start: 16, len: 16 };
-    pub const LATERAL: Field = Field { start: 32, len: 16 };
-    pub const METRE_PER_UNIT: f64 = 100.0;
-    pub const CONFIDENCE: Field = Field { start: 48, len: 8 };
-    pub const CONFIDENCE_MAX: u64 = 100;
-    pub const CONFIRMED: Field = Field { start: 13, len: 1 };
-    pub const ROAD_MEASURED: Field = Field { start: 14, len: 1 };
-    pub const HEIGHT: Field = Field { start: 56, len: 8 };
-    pub const HEIGHT_PER_METRE: f64 = 50.0;
-}
+use super::dbc::flyd_obstacle as layout;
 
 /// `FLYD_Obstacle`: the nearest obstacle in the corridor, in the vehicle frame of
 /// [`crate::geometry`], and whether the road it stands on was measured.
@@ -81,10 +68,10 @@ impl ObstacleMsg {
 }
 
 impl CanMessage for ObstacleMsg {
-    const NAME: &'static str = "FLYD_Obstacle";
-    const DEFAULT_ID: u32 = 0x122;
-    const DEFAULT_DATA_ID: u16 = 0x0122;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(100);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
@@ -95,21 +82,29 @@ impl CanMessage for ObstacleMsg {
             && self.lateral.is_finite()
             && self.confidence.is_finite();
         if valid {
-            VALID.put(&mut w, 1);
+            OBSTACLE_VALID.put(&mut w, 1);
             DISTANCE.put(
                 &mut w,
-                to_raw_unsigned(self.distance, METRE_PER_UNIT, DISTANCE.max_unsigned(), 0),
+                to_raw_unsigned(self.distance, DISTANCE_PER_UNIT, DISTANCE.max_unsigned(), 0),
             );
-            LATERAL.put_signed(&mut w, to_raw_signed(self.lateral, METRE_PER_UNIT, LATERAL));
+            LATERAL.put_signed(
+                &mut w,
+                to_raw_signed(self.lateral, LATERAL_PER_UNIT, LATERAL),
+            );
             CONFIDENCE.put(
                 &mut w,
-                to_raw_unsigned(self.confidence, 1.0, CONFIDENCE_MAX, 0),
+                to_raw_unsigned(
+                    self.confidence,
+                    CONFIDENCE_PER_UNIT,
+                    CONFIDENCE_MAX as u64,
+                    0,
+                ),
             );
-            CONFIRMED.put(&mut w, u64::from(self.confirmed));
+            OBSTACLE_CONFIRMED.put(&mut w, u64::from(self.confirmed));
             if self.height.is_finite() {
                 HEIGHT.put(
                     &mut w,
-                    to_raw_unsigned(self.height, HEIGHT_PER_METRE, HEIGHT.max_unsigned(), 0),
+                    to_raw_unsigned(self.height, HEIGHT_PER_UNIT, HEIGHT.max_unsigned(), 0),
                 );
             }
         }
@@ -121,19 +116,19 @@ impl CanMessage for ObstacleMsg {
         use layout::*;
         let (w, counter) = unseal(data, data_id)?;
         let confidence = CONFIDENCE.get(w);
-        if confidence > CONFIDENCE_MAX {
+        if confidence > CONFIDENCE_MAX as u64 {
             return Err(DecodeError::OutOfRange {
-                signal: "Confidence",
+                signal: CONFIDENCE_NAME,
                 raw: confidence,
             });
         }
         let msg = Self {
-            valid: VALID.get(w) == 1,
-            distance: DISTANCE.get(w) as f64 / METRE_PER_UNIT,
-            lateral: LATERAL.get_signed(w) as f64 / METRE_PER_UNIT,
+            valid: OBSTACLE_VALID.get(w) == 1,
+            distance: DISTANCE.get(w) as f64 / DISTANCE_PER_UNIT,
+            lateral: LATERAL.get_signed(w) as f64 / LATERAL_PER_UNIT,
             confidence: confidence as f64,
-            confirmed: CONFIRMED.get(w) == 1,
-            height: HEIGHT.get(w) as f64 / HEIGHT_PER_METRE,
+            confirmed: OBSTACLE_CONFIRMED.get(w) == 1,
+            height: HEIGHT.get(w) as f64 / HEIGHT_PER_UNIT,
             road_measured: ROAD_MEASURED.get(w) == 1,
         };
         Ok((msg, counter))

@@ -19,19 +19,10 @@ use super::{
 };
 use crate::perception::Tracked;
 
-mod layout {
-    use super::super::Field;
-
-    pub const MOTION_VALID: Field = Field { start: 12, len: 1 };
-    pub const OBSTACLE_VALID: Field = Field { start: 13, len: 1 };
-    pub const CLOSING: Field = Field { start: 16, len: 16 };
-    pub const TTC: Field = Field { start: 32, len: 16 };
-    pub const SPEED: Field = Field { start: 48, len: 16 };
-    pub const PER_UNIT: f64 = 100.0;
-}
+use super::dbc::flyd_obstacle_motion as layout;
 
 /// The time to collision sent when the vehicle is not closing in, seconds (the raw maximum).
-pub const NOT_CLOSING: f64 = 655.35;
+pub const NOT_CLOSING: f64 = layout::TIME_TO_COLLISION_MAX;
 
 /// `FLYD_ObstacleMotion`: the confirmed obstacle's motion as the decision takes it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,10 +76,10 @@ impl ObstacleMotionMsg {
 }
 
 impl CanMessage for ObstacleMotionMsg {
-    const NAME: &'static str = "FLYD_ObstacleMotion";
-    const DEFAULT_ID: u32 = 0x124;
-    const DEFAULT_DATA_ID: u16 = 0x0124;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(100);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
@@ -100,14 +91,22 @@ impl CanMessage for ObstacleMotionMsg {
         if valid {
             OBSTACLE_VALID.put(&mut w, 1);
             MOTION_VALID.put(&mut w, u64::from(self.motion_valid));
-            CLOSING.put_signed(&mut w, to_raw_signed(self.closing_speed, PER_UNIT, CLOSING));
-            TTC.put(
+            CLOSING_SPEED.put_signed(
                 &mut w,
-                to_raw_unsigned(self.time_to_collision, PER_UNIT, TTC.max_unsigned(), 0),
+                to_raw_signed(self.closing_speed, CLOSING_SPEED_PER_UNIT, CLOSING_SPEED),
             );
-            SPEED.put_signed(&mut w, to_raw_signed(self.speed, PER_UNIT, SPEED));
+            TIME_TO_COLLISION.put(
+                &mut w,
+                to_raw_unsigned(
+                    self.time_to_collision,
+                    TIME_TO_COLLISION_PER_UNIT,
+                    TIME_TO_COLLISION.max_unsigned(),
+                    0,
+                ),
+            );
+            SPEED.put_signed(&mut w, to_raw_signed(self.speed, SPEED_PER_UNIT, SPEED));
         } else {
-            TTC.put(&mut w, TTC.max_unsigned());
+            TIME_TO_COLLISION.put(&mut w, TIME_TO_COLLISION.max_unsigned());
         }
         seal(w, counter, data_id)
     }
@@ -118,9 +117,9 @@ impl CanMessage for ObstacleMotionMsg {
         let msg = Self {
             obstacle_valid: OBSTACLE_VALID.get(w) == 1,
             motion_valid: MOTION_VALID.get(w) == 1,
-            closing_speed: CLOSING.get_signed(w) as f64 / PER_UNIT,
-            time_to_collision: TTC.get(w) as f64 / PER_UNIT,
-            speed: SPEED.get_signed(w) as f64 / PER_UNIT,
+            closing_speed: CLOSING_SPEED.get_signed(w) as f64 / CLOSING_SPEED_PER_UNIT,
+            time_to_collision: TIME_TO_COLLISION.get(w) as f64 / TIME_TO_COLLISION_PER_UNIT,
+            speed: SPEED.get_signed(w) as f64 / SPEED_PER_UNIT,
         };
         Ok((msg, counter))
     }

@@ -15,14 +15,7 @@ use std::time::Duration;
 use super::{AliveCounter, CanMessage, DecodeError, FRAME_LEN, seal, to_raw_signed, unseal};
 use crate::path::PathEstimate;
 
-mod layout {
-    use super::super::Field;
-
-    pub const VALID: Field = Field { start: 12, len: 1 };
-    pub const CURVATURE: Field = Field { start: 16, len: 16 };
-    pub const CURVATURE_NOW: Field = Field { start: 32, len: 16 };
-    pub const CURVATURE_PER_UNIT: f64 = 100_000.0;
-}
+use super::dbc::flyd_path as layout;
 
 /// `FLYD_Path`: the corridor's centre line and the arc of the moment.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -57,10 +50,10 @@ impl PathMsg {
 }
 
 impl CanMessage for PathMsg {
-    const NAME: &'static str = "FLYD_Path";
-    const DEFAULT_ID: u32 = 0x123;
-    const DEFAULT_DATA_ID: u16 = 0x0123;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(100);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
@@ -68,7 +61,7 @@ impl CanMessage for PathMsg {
         // A path without a finite curvature is no path a receiver could follow.
         let valid = self.valid && self.curvature.is_finite() && self.curvature_now.is_finite();
         if valid {
-            VALID.put(&mut w, 1);
+            PATH_VALID.put(&mut w, 1);
             CURVATURE.put_signed(
                 &mut w,
                 to_raw_signed(self.curvature, CURVATURE_PER_UNIT, CURVATURE),
@@ -85,7 +78,7 @@ impl CanMessage for PathMsg {
         use layout::*;
         let (w, counter) = unseal(data, data_id)?;
         let msg = Self {
-            valid: VALID.get(w) == 1,
+            valid: PATH_VALID.get(w) == 1,
             curvature: CURVATURE.get_signed(w) as f64 / CURVATURE_PER_UNIT,
             curvature_now: CURVATURE_NOW.get_signed(w) as f64 / CURVATURE_PER_UNIT,
         };

@@ -10,20 +10,7 @@ use crate::sensor::SensorFaults;
 use crate::status::{FaultBits, State};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
-mod layout {
-    use super::super::Field;
-
-    pub const STATE: Field = Field { start: 12, len: 3 };
-    pub const MOTION_FAULT: Field = Field { start: 15, len: 1 };
-    pub const FAULTS: Field = Field { start: 16, len: 8 };
-    pub const AGE_MS: Field = Field { start: 24, len: 12 };
-    pub const SENSOR: Field = Field { start: 36, len: 4 };
-    pub const GENERATIONS: Field = Field { start: 40, len: 8 };
-    pub const GENERATIONS_PER_UNIT: f64 = 0.5;
-    pub const FPS_LEFT: Field = Field { start: 48, len: 8 };
-    pub const FPS_RIGHT: Field = Field { start: 56, len: 8 };
-    pub const FPS_PER_UNIT: f64 = 2.0;
-}
+use super::dbc::flyd_status as layout;
 
 /// `FLYD_Status`: flyd's health.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,39 +34,44 @@ pub struct StatusMsg {
 }
 
 impl CanMessage for StatusMsg {
-    const NAME: &'static str = "FLYD_Status";
-    const DEFAULT_ID: u32 = 0x121;
-    const DEFAULT_DATA_ID: u16 = 0x0121;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
         let mut w = 0u64;
         STATE.put(&mut w, u64::from(self.state.raw()));
         MOTION_FAULT.put(&mut w, u64::from(self.motion_fault));
-        FAULTS.put(&mut w, u64::from(self.faults.bits()));
+        FAULT_BITS.put(&mut w, u64::from(self.faults.bits()));
         let age_ms = u64::try_from(self.perception_age.as_millis()).unwrap_or(u64::MAX);
-        AGE_MS.put(&mut w, age_ms.min(AGE_MS.max_unsigned()));
-        SENSOR.put(&mut w, u64::from(self.sensor.bits()));
-        GENERATIONS.put(
+        PERCEPTION_AGE_MS.put(&mut w, age_ms.min(PERCEPTION_AGE_MS.max_unsigned()));
+        SENSOR_FAULTS.put(&mut w, u64::from(self.sensor.bits()));
+        GENERATIONS_PER_SEC.put(
             &mut w,
             to_raw_unsigned(
                 self.generations_per_sec,
-                GENERATIONS_PER_UNIT,
-                GENERATIONS.max_unsigned(),
+                GENERATIONS_PER_SEC_PER_UNIT,
+                GENERATIONS_PER_SEC.max_unsigned(),
                 0,
             ),
         );
-        FPS_LEFT.put(
+        CAM_FPS_LEFT.put(
             &mut w,
-            to_raw_unsigned(self.cam_fps_left, FPS_PER_UNIT, FPS_LEFT.max_unsigned(), 0),
+            to_raw_unsigned(
+                self.cam_fps_left,
+                CAM_FPS_LEFT_PER_UNIT,
+                CAM_FPS_LEFT.max_unsigned(),
+                0,
+            ),
         );
-        FPS_RIGHT.put(
+        CAM_FPS_RIGHT.put(
             &mut w,
             to_raw_unsigned(
                 self.cam_fps_right,
-                FPS_PER_UNIT,
-                FPS_RIGHT.max_unsigned(),
+                CAM_FPS_RIGHT_PER_UNIT,
+                CAM_FPS_RIGHT.max_unsigned(),
                 0,
             ),
         );
@@ -90,14 +82,14 @@ impl CanMessage for StatusMsg {
         use layout::*;
         let (w, counter) = unseal(data, data_id)?;
         let msg = Self {
-            state: decode_enum(STATE.get(w), "State", State::from_raw)?,
-            faults: FaultBits::from_bits(FAULTS.get(w) as u8),
-            perception_age: Duration::from_millis(AGE_MS.get(w)),
-            sensor: SensorFaults::from_bits(SENSOR.get(w) as u8),
+            state: decode_enum(STATE.get(w), STATE_NAME, State::from_raw)?,
+            faults: FaultBits::from_bits(FAULT_BITS.get(w) as u8),
+            perception_age: Duration::from_millis(PERCEPTION_AGE_MS.get(w)),
+            sensor: SensorFaults::from_bits(SENSOR_FAULTS.get(w) as u8),
             motion_fault: MOTION_FAULT.get(w) == 1,
-            generations_per_sec: GENERATIONS.get(w) as f64 / GENERATIONS_PER_UNIT,
-            cam_fps_left: FPS_LEFT.get(w) as f64 / FPS_PER_UNIT,
-            cam_fps_right: FPS_RIGHT.get(w) as f64 / FPS_PER_UNIT,
+            generations_per_sec: GENERATIONS_PER_SEC.get(w) as f64 / GENERATIONS_PER_SEC_PER_UNIT,
+            cam_fps_left: CAM_FPS_LEFT.get(w) as f64 / CAM_FPS_LEFT_PER_UNIT,
+            cam_fps_right: CAM_FPS_RIGHT.get(w) as f64 / CAM_FPS_RIGHT_PER_UNIT,
         };
         Ok((msg, counter))
     }

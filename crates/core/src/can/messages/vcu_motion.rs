@@ -6,15 +6,7 @@ use std::time::Duration;
 use super::{AliveCounter, CanMessage, DecodeError, FRAME_LEN, seal, to_raw_signed, unseal};
 
 /// Raw layout constants (the DBC test checks the codec against `config/flyd.dbc`).
-mod layout {
-    use super::super::Field;
-
-    pub const VALID: Field = Field { start: 12, len: 1 };
-    pub const SPEED: Field = Field { start: 16, len: 16 };
-    pub const SPEED_PER_UNIT: f64 = 100.0;
-    pub const YAW_RATE: Field = Field { start: 32, len: 16 };
-    pub const YAW_RATE_PER_UNIT: f64 = 10_000.0;
-}
+use super::dbc::vcu_motion as layout;
 
 /// `VCU_Motion`: the vehicle's own motion, sent by the vehicle (VCU) and received by flyd.
 ///
@@ -33,16 +25,16 @@ pub struct MotionMsg {
 }
 
 impl CanMessage for MotionMsg {
-    const NAME: &'static str = "VCU_Motion";
-    const DEFAULT_ID: u32 = 0x110;
-    const DEFAULT_DATA_ID: u16 = 0x0110;
-    const DEFAULT_PERIOD: Duration = Duration::from_millis(20);
+    const NAME: &'static str = layout::NAME;
+    const DEFAULT_ID: u32 = layout::ID;
+    const DEFAULT_DATA_ID: u16 = layout::DATA_ID;
+    const DEFAULT_PERIOD: Duration = Duration::from_millis(layout::PERIOD_MS);
 
     fn encode_with(&self, counter: AliveCounter, data_id: u16) -> [u8; FRAME_LEN] {
         use layout::*;
         let mut w = 0u64;
         let valid = self.valid && self.speed.is_finite() && self.yaw_rate.is_finite();
-        VALID.put(&mut w, u64::from(valid));
+        MOTION_VALID.put(&mut w, u64::from(valid));
         SPEED.put_signed(&mut w, to_raw_signed(self.speed, SPEED_PER_UNIT, SPEED));
         YAW_RATE.put_signed(
             &mut w,
@@ -55,7 +47,7 @@ impl CanMessage for MotionMsg {
         use layout::*;
         let (w, counter) = unseal(data, data_id)?;
         let msg = Self {
-            valid: VALID.get(w) == 1,
+            valid: MOTION_VALID.get(w) == 1,
             speed: SPEED.get_signed(w) as f64 / SPEED_PER_UNIT,
             yaw_rate: YAW_RATE.get_signed(w) as f64 / YAW_RATE_PER_UNIT,
         };

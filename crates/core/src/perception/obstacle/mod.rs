@@ -99,7 +99,8 @@ pub struct Obstacle {
     /// few pixels of disparity is uncertain by metres).
     pub near: f64,
     /// Lateral offset from the predicted path, metres (straight: vehicle x), positive right:
-    /// the cluster's median.
+    /// the cluster's median (beside the corridor, [`ObstacleFinder::watching`]: its quartile
+    /// nearest the path).
     pub lateral: f64,
     /// Height above the road of the cluster's lowest fly, metres.
     pub bottom: f64,
@@ -471,7 +472,15 @@ impl ObstacleFinder {
         // The near face (the first quartile of depth): what braking must stop before, along
         // the path (straight: the depth).
         let depth = quantile(&mut self.scratch, |u| u.z, 1);
-        let lateral = quantile(&mut self.scratch, |u| u.x, 2);
+        // Across: the median in the corridor; beside it, the quartile nearest the path (its
+        // inner edge). A car parked beside the lane shows more of its side as the vehicle
+        // nears it, and its flies' median drifts towards the path (0.4-1.4 m/s on hw-mock's
+        // parked cars); its inner edge stays where it is, and a pedestrian's moves with them.
+        let lateral = match self.band {
+            Some((lo, _)) if lo >= 0.0 => quantile(&mut self.scratch, |u| u.x, 1),
+            Some(_) => quantile(&mut self.scratch, |u| u.x, 3),
+            None => quantile(&mut self.scratch, |u| u.x, 2),
+        };
         let f_b = self.pixels_per_inverse_depth;
         // Half a pixel of disparity nearer: in depth, then along the path by as much.
         let near_depth = f_b / (f_b / depth + c.disparity_error_px);
