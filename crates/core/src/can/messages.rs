@@ -1,5 +1,9 @@
 //! Typed flyd CAN messages and their 8-byte encoding (the contract of `config/flyd.dbc`).
 //!
+//! The layout below is the DBC's, and the code takes it from there: `build.rs` writes every
+//! message's name, ID, Data ID and period and every signal's bits, steps per unit and bounds
+//! into constants (module `dbc`); a message's file says which value goes in which signal.
+//!
 //! # Frame layout common to every message
 //! Classic CAN, standard 11-bit IDs, DLC 8, all signals Intel (little-endian): a signal with DBC
 //! start bit `s` and length `n` occupies bits `s..s+n` of the frame read as one little-endian

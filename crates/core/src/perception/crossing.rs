@@ -26,6 +26,10 @@
 //!
 //! The price: a pedestrian who walks towards the road and stops at its kerb is braked for
 //! until they stop (`pedestrian-stops-at-kerb`), as a driver would lift off.
+//!
+//! Off by default (`watch_half_width = 0`): on bends and on an empty road in the daemon's
+//! real-time run the watch still took roadside objects for ones walking in (docs/traffic.md).
+//! Nothing here runs then, and the decision is the corridor's alone.
 
 use super::motion::{MAX_SIGMA, MIN_SAMPLES, MIN_SPAN};
 use super::track::{CREDIT_SIGMAS, Tracked};
