@@ -1107,6 +1107,32 @@ fn focused_immigrants_look_around_what_was_seen() {
     assert!(around >= 6, "{around} of 8 around what was seen");
 }
 
+/// The small rig's cameras are 1 m up, level: a straight corridor 1.2 m wide around their
+/// height, 10 m long, nothing watched beside it.
+const SMALL_CORRIDOR: Corridor = Corridor {
+    half_width: 0.6,
+    min_height: 0.4,
+    max_height: 1.6,
+    max_distance: 10.0,
+    curvature: 0.0,
+    watch_half_width: 0.0,
+};
+
+/// An engine of `params` over `rig` scanning `corridor`, after four generations on `frame`.
+fn scanning(
+    rig: &StereoRig,
+    frame: &StereoFrame,
+    params: EngineParams,
+    corridor: Option<Corridor>,
+) -> Engine {
+    let mut e = Engine::new(rig, params).expect("engine");
+    e.set_corridor(corridor);
+    for _ in 0..4 {
+        e.step(frame).expect("step");
+    }
+    e
+}
+
 /// Corridor immigrants scan the corridor: this generation's immigrants after the focused ones
 /// land inside it, on the wall it crosses (their probes find the wall's depth), on a still
 /// frame where nothing was seen. Without a corridor (or with none of them drawn) the
@@ -1115,29 +1141,13 @@ fn focused_immigrants_look_around_what_was_seen() {
 fn corridor_immigrants_probe_the_corridor() {
     let rig = rig();
     let frame = wall_frame(&rig, 6.0, 3, 1);
-    // The small rig's cameras are 1 m up, level: a corridor 1.2 m wide around their height.
-    let corridor = Corridor {
-        half_width: 0.6,
-        min_height: 0.4,
-        max_height: 1.6,
-        max_distance: 10.0,
-        curvature: 0.0,
-        watch_half_width: 0.0,
-    };
+    let corridor = SMALL_CORRIDOR;
     let run = |n: u32, scan: Option<Corridor>| {
-        let mut e = Engine::new(
-            &rig,
-            EngineParams {
-                corridor_immigrants: n,
-                ..params(1600, 5)
-            },
-        )
-        .expect("engine");
-        e.set_corridor(scan);
-        for _ in 0..4 {
-            e.step(&frame).expect("step");
-        }
-        e
+        let p = EngineParams {
+            corridor_immigrants: n,
+            ..params(1600, 5)
+        };
+        scanning(&rig, &frame, p, scan)
     };
     let paper = run(0, None);
     assert_eq!(
@@ -1199,33 +1209,18 @@ fn watch_immigrants_scan_beside_the_corridor() {
     let rig = rig();
     let frame = wall_frame(&rig, 6.0, 3, 1);
     let corridor = Corridor {
-        half_width: 0.6,
-        min_height: 0.4,
-        max_height: 1.6,
-        max_distance: 10.0,
-        curvature: 0.0,
         watch_half_width: 2.0,
+        ..SMALL_CORRIDOR
     };
     let run = |n: u32, scan: Corridor| {
-        let mut e = Engine::new(
-            &rig,
-            EngineParams {
-                corridor_immigrants: 8,
-                watch_immigrants: n,
-                ..params(1600, 5)
-            },
-        )
-        .expect("engine");
-        e.set_corridor(Some(scan));
-        for _ in 0..4 {
-            e.step(&frame).expect("step");
-        }
-        e
+        let p = EngineParams {
+            corridor_immigrants: 8,
+            watch_immigrants: n,
+            ..params(1600, 5)
+        };
+        scanning(&rig, &frame, p, Some(scan))
     };
-    let without = Corridor {
-        watch_half_width: 0.0,
-        ..corridor
-    };
+    let without = SMALL_CORRIDOR;
     assert_eq!(
         population_bits(&run(0, corridor)),
         population_bits(&run(16, without)),
@@ -1271,12 +1266,8 @@ fn a_curved_corridor_is_scanned_along_its_path() {
     let rig = rig();
     let mut e = Engine::new(&rig, params(200, 5)).expect("engine");
     let corridor = Corridor {
-        half_width: 0.6,
-        min_height: 0.4,
-        max_height: 1.6,
-        max_distance: 10.0,
         curvature: 0.08,
-        watch_half_width: 0.0,
+        ..SMALL_CORRIDOR
     };
     e.set_corridor(Some(corridor));
     let path = crate::path::PredictedPath::arc(0.08);
