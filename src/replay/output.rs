@@ -82,7 +82,8 @@ obstacle_bottom,obstacle_top,obstacle_flies,obstacle_confidence,command,reason,t
 left_contrast,right_contrast,left_textured,right_textured,left_unchanged,right_unchanged,speed_kmh,\
 search_far_m,obstacle_speed,obstacle_speed_sigma,obstacle_motion_established,obstacle_credited_speed,\
 obstacle_lateral_speed,obstacle_entering_s,watch_left_distance,watch_left_lateral,\
-watch_left_lateral_speed,watch_right_distance,watch_right_lateral,watch_right_lateral_speed";
+watch_left_lateral_speed,watch_right_distance,watch_right_lateral,watch_right_lateral_speed,\
+obstacle_centre";
 
 /// One row of `trace.csv` (no newline).
 fn trace_line(r: &TraceRow) -> String {
@@ -94,7 +95,7 @@ fn trace_line(r: &TraceRow) -> String {
     let frac = |v: Option<f32>| v.map_or(String::new(), |v| format!("{v:.4}"));
     format!(
         "{},{},{},{},{:.4},{:e},{:e},{},{},{:.4},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1},\
-         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1},{},{},{},{:.3},{},{},{},{},{},{},{},{}",
+         {:.4},{},{:.2},{:.2},{:.4},{:.4},{},{},{:.2},{:.1},{},{},{},{:.3},{},{},{},{},{},{},{},{},{}",
         r.stats.generation,
         r.frame,
         r.frame_name,
@@ -146,6 +147,7 @@ fn trace_line(r: &TraceRow) -> String {
         num(right.confirmed().map(|o| o.near)),
         num(right.confirmed().map(|o| o.lateral)),
         num(right.motion.map(|m| m.lateral_speed)),
+        num(o.map(|o| o.centre)),
     )
 }
 

@@ -24,7 +24,9 @@
 //!
 //! - **An obstacle that moves** ([`DecisionInput::obstacle_speed`]: its speed over the ground
 //!   along the path, credited only once its motion is established and less two standard errors,
-//!   never for an oncoming one): the reach above becomes what the encounter uses of the gap
+//!   never for an oncoming one; SLOW is judged with it less one,
+//!   [`DecisionInput::obstacle_speed_slow`]: the early, gentle level, with STOP still on
+//!   guard at two): the reach above becomes what the encounter uses of the gap
 //!   ([`encounter::consumed`]) plus the margin, the vehicle braking with the command's
 //!   deceleration after the reaction time, the obstacle braking from now with
 //!   `lead_decel / stop_decel` of it (STOP: 3 m/s^2 by default, firm braking in traffic;
@@ -335,6 +337,10 @@ pub struct DecisionInput {
     /// [`crate::perception::Tracked::decision_speed`]. NaN, infinite or negative counts as 0
     /// (still: the conservative reading, never a fault).
     pub obstacle_speed: f64,
+    /// The speed SLOW is judged with, m/s: the same, credited less one standard error instead
+    /// of two ([`crate::perception::Tracked::slow_speed`]); taken as `obstacle_speed` where
+    /// that is higher.
+    pub obstacle_speed_slow: f64,
     /// The vehicle's speed, m/s (`obstacle` mode; NaN or negative is a fault there).
     pub speed: f64,
     /// `obstacle` mode: seconds the vehicle drives before the next evidence can change the
@@ -353,6 +359,7 @@ impl DecisionInput {
             global_warning,
             obstacle: None,
             obstacle_speed: 0.0,
+            obstacle_speed_slow: 0.0,
             speed: 0.0,
             latency: 0.0,
             faults: FaultBits::empty(),
@@ -390,16 +397,18 @@ impl DecisionInput {
             }),
             (a, b) => a.or(b),
         };
-        let obstacle_speed = match (self.obstacle, other.obstacle) {
-            (Some(_), Some(_)) => self.credited().min(other.credited()),
-            (Some(_), None) => self.credited(),
-            (None, Some(_)) => other.credited(),
+        let lower = |command| match (self.obstacle, other.obstacle) {
+            (Some(_), Some(_)) => self.credited_for(command).min(other.credited_for(command)),
+            (Some(_), None) => self.credited_for(command),
+            (None, Some(_)) => other.credited_for(command),
             (None, None) => 0.0,
         };
+        let (obstacle_speed, obstacle_speed_slow) = (lower(Command::Stop), lower(Command::Slow));
         Self {
             global_warning: high(self.global_warning, other.global_warning),
             obstacle,
             obstacle_speed,
+            obstacle_speed_slow,
             speed: high(self.speed, other.speed),
             latency: high(self.latency, other.latency),
             faults: self.faults | other.faults,
@@ -410,6 +419,33 @@ impl DecisionInput {
     pub fn credited(&self) -> f64 {
         let u = self.obstacle_speed;
         if u.is_finite() && u > 0.0 { u } else { 0.0 }
+    }
+
+    /// The speed `command` is judged with: SLOW's [`DecisionInput::obstacle_speed_slow`] (at
+    /// least [`DecisionInput::credited`]), STOP's [`DecisionInput::credited`]; 0 for CLEAR.
+    pub fn credited_for(&self, command: Command) -> f64 {
+        match command {
+            Command::Clear => 0.0,
+            Command::Stop => self.credited(),
+            Command::Slow => {
+                let u = self.obstacle_speed_slow;
+                if u.is_finite() && u > 0.0 {
+                    u.max(self.credited())
+                } else {
+                    self.credited()
+                }
+            }
+        }
+    }
+
+    /// This snapshot with the speeds the decision may credit `tracked`'s confirmed obstacle
+    /// ([`crate::perception::Tracked::decision_speed`], [`crate::perception::Tracked::slow_speed`]).
+    pub fn crediting(self, tracked: &crate::perception::Tracked) -> Self {
+        Self {
+            obstacle_speed: tracked.decision_speed(),
+            obstacle_speed_slow: tracked.slow_speed(),
+            ..self
+        }
     }
 }
 
@@ -577,9 +613,9 @@ impl Decider {
                     Some(d) => {
                         // Where the obstacle will be when the next evidence can act.
                         // Both move on meanwhile (a still one: `v - 0` is `v`, bit for bit).
-                        let u = input.credited();
-                        let d = d - (v - u) * latency;
                         let ratio = |command| {
+                            let u = input.credited_for(command);
+                            let d = d - (v - u) * latency;
                             let reach = c.reach_behind(command, v, u);
                             if d > 0.0 { reach / d } else { f64::INFINITY }
                         };

@@ -65,11 +65,11 @@ impl Outcome {
         DecisionInput {
             global_warning: self.report.stats.global_warning,
             obstacle: self.report.tracked.decision_distance(),
-            obstacle_speed: self.report.tracked.decision_speed(),
             latency,
             faults: camera_error(self.sensor.faults),
             ..DecisionInput::at_speed(None, speed)
         }
+        .crediting(&self.report.tracked)
     }
 }
 

@@ -428,10 +428,10 @@ impl<B: CanBus> ControlThread<B> {
         let age = now.saturating_sub(snapshot.capture_time());
         DecisionInput {
             global_warning: snapshot.global_warning,
-            obstacle_speed: snapshot.tracked.decision_speed(),
             latency: (age + self.frame_period).as_secs_f64(),
             ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(now))
         }
+        .crediting(&snapshot.tracked)
     }
 
     /// Records a snapshot taken and what it told the decider (`input`, at `now`).

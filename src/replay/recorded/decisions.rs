@@ -112,10 +112,10 @@ pub(super) fn replay_decisions(
                 }
                 let input = DecisionInput {
                     global_warning: o.global_warning,
-                    obstacle_speed: o.tracked.decision_speed(),
                     latency: p.latency,
                     ..DecisionInput::at_speed(o.obstacle, p.speed)
-                };
+                }
+                .crediting(&o.tracked);
                 if let Some(r) = recorder {
                     let observed = crate::record::Observed {
                         generation: p.generation,
@@ -146,17 +146,17 @@ pub(super) fn replay_decisions(
                     from => {
                         // The newest snapshot again, as the daemon recorded it.
                         let latest = || {
-                            d.latest_generation
-                                .and_then(outcome)
-                                .map(|o| DecisionInput {
+                            d.latest_generation.and_then(outcome).map(|o| {
+                                DecisionInput {
                                     global_warning: o.global_warning,
-                                    obstacle_speed: o.tracked.decision_speed(),
                                     latency: d.latest_latency.unwrap_or(f64::NAN),
                                     ..DecisionInput::at_speed(
                                         o.obstacle,
                                         d.latest_speed.unwrap_or(f64::NAN),
                                     )
-                                })
+                                }
+                                .crediting(&o.tracked)
+                            })
                         };
                         // The daemon's choice, as it recorded it: a recording that dropped
                         // snapshots must not make the replay choose otherwise.

@@ -820,3 +820,39 @@ fn the_worst_of_two_snapshots_credits_the_slower_obstacle() {
     };
     assert_eq!(a.worst(nan).obstacle_speed, 0.0);
 }
+
+/// SLOW is judged with the obstacle's speed less one standard error, STOP with two: a car
+/// followed 16.5 m ahead at 40 km/h, measured at its speed give or take 1.3 m/s.
+#[test]
+fn slow_credits_one_standard_error_and_stop_two() {
+    let d = Decider::new(DecisionConfig::default()).expect("valid");
+    let v = 40.0 / 3.6;
+    let stop_only = behind(16.5, v, v - 2.6);
+    assert_eq!(d.level(&stop_only), Slow);
+    let both = DecisionInput {
+        obstacle_speed_slow: v - 1.3,
+        ..stop_only
+    };
+    assert_eq!(d.level(&both), Clear);
+    // The same car nearer: STOP stands on its own credit.
+    let near = DecisionInput {
+        obstacle: Some(5.0),
+        ..both
+    };
+    assert_eq!(d.level(&near), Stop);
+    // SLOW's speed never below STOP's, and the worst of two takes the lower of each.
+    let low = DecisionInput {
+        obstacle_speed_slow: 1.0,
+        ..stop_only
+    };
+    assert_eq!(low.credited_for(Slow), v - 2.6);
+    let w = both.worst(DecisionInput {
+        obstacle_speed: v - 3.0,
+        obstacle_speed_slow: v - 1.5,
+        ..both
+    });
+    assert_eq!(
+        (w.obstacle_speed, w.obstacle_speed_slow),
+        (v - 3.0, v - 1.5)
+    );
+}

@@ -10,7 +10,7 @@
 //!
 //! A watched obstacle **enters** ([`entry`]) when its motion across is established (as the
 //! motion along the path is: [`super::motion::MIN_SAMPLES`] sightings over
-//! [`super::motion::MIN_SPAN`], a standard error of at most [`super::motion::MAX_SIGMA`]; a
+//! [`super::motion::MIN_SPAN`], a standard error of at most [`MAX_LATERAL_SIGMA`]; a
 //! full window of 16, tried, found the crossing pedestrians too late: contact on 3 of 3
 //! CPNA/CPFA runs, seed 1) and
 //! surely towards the corridor (its speed across less [`CREDIT_SIGMAS`] standard errors is at
@@ -31,7 +31,10 @@
 //! real-time run the watch still took roadside objects for ones walking in (docs/traffic.md).
 //! Nothing here runs then, and the decision is the corridor's alone.
 
-use super::motion::{MAX_SIGMA, MIN_SAMPLES, MIN_SPAN};
+use super::motion::{MIN_SAMPLES, MIN_SPAN};
+
+/// The largest standard error of a motion across that establishes it, m/s.
+pub const MAX_LATERAL_SIGMA: f64 = 1.0;
 use super::track::{CREDIT_SIGMAS, Tracked};
 
 /// Seconds after the vehicle's front reaches a crossing obstacle's distance that it still
@@ -58,7 +61,7 @@ pub fn entry(watched: &Tracked, half_width: f64) -> Option<f64> {
     let established = m.samples as usize >= MIN_SAMPLES
         && m.span >= MIN_SPAN
         && m.lateral_sigma.is_finite()
-        && m.lateral_sigma <= MAX_SIGMA;
+        && m.lateral_sigma <= MAX_LATERAL_SIGMA;
     if !(established && o.lateral.is_finite() && o.lateral != 0.0) {
         return None;
     }
@@ -121,6 +124,7 @@ mod tests {
             obstacle: Some(Obstacle {
                 distance: near + 0.5,
                 near,
+                centre: near + 0.5,
                 lateral,
                 bottom: 0.1,
                 top: 1.7,

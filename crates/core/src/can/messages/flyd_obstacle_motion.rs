@@ -137,6 +137,7 @@ mod tests {
             obstacle: Some(Obstacle {
                 distance: near + 0.3,
                 near,
+                centre: near + 0.5,
                 lateral: 0.1,
                 bottom: 0.3,
                 top: 1.5,

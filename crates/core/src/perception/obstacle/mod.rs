@@ -32,8 +32,8 @@
 //!    made one at 1.7 m), in
 //!    at least `min_cells` distinct `cell_px`-pixel squares of the left image, over at least
 //!    two rows of them, and `MIN_WIDTH_PX` columns and `min_width` metres wide (4 median
-//!    absolute deviations of its flies' positions: the width of a uniform spread, robust to
-//!    a few strays).
+//!    absolute deviations of its cells' positions, each cell once: the width of a uniform
+//!    spread, robust to a few strays and to flies piled on one feature).
 //!    An obstacle is seen in several places of the
 //!    image, across and up; a false match is one place, however many flies crowd on it (on
 //!    KITTI 2015 #0, 12 flies on one lane-marking tip, 4.7 px of disparity off the truth, made
@@ -84,7 +84,7 @@ use crate::road_plane::RoadPlane;
 mod cluster;
 mod config;
 
-use cluster::{CellSet, Unique, nearest_cluster, reaches_the_road, stride_for};
+use cluster::{CellSet, Unique, cell_centre, nearest_cluster, reaches_the_road, stride_for};
 pub use config::{ObstacleConfig, PathKind, PerceptionParamError};
 
 /// The nearest obstacle in the corridor, vehicle frame.
@@ -98,6 +98,14 @@ pub struct Obstacle {
     /// What the decision judges it at (the stopping distance is a bound, and the depth of a
     /// few pixels of disparity is uncertain by metres).
     pub near: f64,
+    /// Where the cluster is along the path, metres, each cell of the left image counted once
+    /// (the median of its cells' median distances): what its track's motion is fitted to
+    /// ([`super::track`]). Flies pile on a few features of an obstacle, each pile at its own
+    /// sub-pixel error (on hw-mock's car followed 13.7 m ahead, its left edge read 13.0 m, its
+    /// right 14.2 m, its plate 13.6-14.0 m), and `distance`, a quartile of the flies a sample
+    /// met, jumped 0.7 m between frames as the sample met one pile more than another: a
+    /// car followed at a steady gap read 1-2 m/s closing.
+    pub centre: f64,
     /// Lateral offset from the predicted path, metres (straight: vehicle x), positive right:
     /// the cluster's median (beside the corridor, [`ObstacleFinder::watching`]: its quartile
     /// nearest the path).
@@ -462,6 +470,7 @@ impl ObstacleFinder {
         let Some(cells) = found else {
             return Ok(None);
         };
+        let centre = f64::from(cell_centre(&mut self.members, &mut self.scratch));
         let cluster = &self.members;
         let quantile = |scratch: &mut Vec<f32>, f: fn(&Unique) -> f32, q: usize| {
             scratch.clear();
@@ -497,6 +506,7 @@ impl ObstacleFinder {
         Ok(Some(Obstacle {
             distance,
             near,
+            centre,
             lateral,
             bottom: f64::from(bottom),
             top: f64::from(top),

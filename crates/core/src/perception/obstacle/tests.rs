@@ -1,4 +1,4 @@
-use super::cluster::{gcd, mad, ordered};
+use super::cluster::{cell_centre, gcd, mad, ordered};
 use super::*;
 
 /// Flies at `depths`, each in its own cell.
@@ -125,15 +125,15 @@ fn chance_matches_scattered_across_the_image_are_no_obstacle() {
         min_cells: 2,
         ..ObstacleConfig::default()
     };
-    // Six flies at one depth, 0.5 m apart laterally: never four within 1 m.
+    // Six flies at one depth, 0.9 m apart laterally: never four within a car's width (2 m).
     let mut u = flies(&[3.0; 6]);
     for (i, f) in u.iter_mut().enumerate() {
-        f.x = -1.2 + 0.5 * i as f32;
+        f.x = -2.25 + 0.9 * i as f32;
     }
     assert_eq!(cluster(&u, &c), None);
-    // Packed within 0.9 m, they are one.
+    // Packed within 1.9 m, they are one.
     for (i, f) in u.iter_mut().enumerate() {
-        f.x = -0.45 + 0.18 * i as f32;
+        f.x = -0.95 + 0.38 * i as f32;
     }
     assert_eq!(cluster(&u, &c), Some((0..6).collect()));
 }
@@ -266,4 +266,59 @@ fn a_config_that_cannot_work_is_named() {
         Err("obstacle.max_bottom")
     );
     assert_eq!(ObstacleConfig::default().validate(), Ok(()));
+}
+
+/// A car's rear at 13.7 m: the flies on its left edge read 13.0 m, on its right 14.2 m, on its
+/// plate 13.6-13.8 m. However many flies a sample meets on one pile, the centre counts each
+/// cell once.
+#[test]
+fn the_centre_counts_each_cell_once() {
+    let mut scratch = Vec::with_capacity(64);
+    let cluster = |left: usize, right: usize| {
+        let mut depths = vec![13.0; left];
+        depths.extend(std::iter::repeat_n(14.2, right));
+        depths.extend([13.6, 13.7, 13.8]);
+        let mut u = flies(&depths);
+        // Each pile on one cell of its own.
+        for f in u.iter_mut() {
+            if f.z == 13.0 {
+                f.cell = 1;
+            } else if f.z == 14.2 {
+                f.cell = 2;
+            }
+        }
+        u
+    };
+    let mut many_left = cluster(20, 2);
+    let mut many_right = cluster(2, 20);
+    assert_eq!(cell_centre(&mut many_left, &mut scratch), 13.7);
+    assert_eq!(cell_centre(&mut many_right, &mut scratch), 13.7);
+    assert_eq!(cell_centre(&mut [], &mut scratch), 0.0);
+}
+
+/// A car 9.7 m ahead whose unique flies pile on its right edge (14 of 20, in three cells of one
+/// column) with the rest on its left edge and plate: one cluster, as wide as the car. The
+/// right edge alone is one vertical edge, no obstacle.
+#[test]
+fn a_car_whose_flies_pile_on_one_edge_is_as_wide_as_its_cells() {
+    let c = ObstacleConfig::default();
+    let mut u = flies(&[9.7; 20]);
+    for (i, f) in u.iter_mut().enumerate() {
+        if i < 14 {
+            // Three cells down the right edge, one column.
+            let row = 20 + (i % 3) as u32;
+            f.cell = (row << 16) | 50;
+            f.u = 400.0 + 0.1 * (i % 3) as f32;
+            f.v = 8.0 * row as f32;
+            f.x = 0.95;
+        } else {
+            // The left edge and the plate, a cell each.
+            f.cell = ((20 + i as u32 % 3) << 16) | (30 + i as u32);
+            f.u = 8.0 * (30 + i) as f32;
+            f.v = 8.0 * (20 + i % 3) as f32;
+            f.x = -0.8 + 0.2 * (i - 14) as f32;
+        }
+    }
+    assert_eq!(cluster(&u, &c), Some((0..20).collect()));
+    assert_eq!(cluster(&u[..14], &c), None);
 }
