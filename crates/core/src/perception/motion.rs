@@ -153,7 +153,7 @@ impl History {
     /// The motion its sightings of the last [`MAX_AGE`] seconds show; none with fewer than
     /// three. A track resumed after a loss of at most [`MAX_BRIDGE`] seconds, with too few
     /// sightings since to be established, is measured across the loss instead
-    /// ([`History::bridged`]).
+    /// (see `History::bridged`).
     pub fn motion(&self) -> Option<ObstacleMotion> {
         let newest = self.newest()?.0;
         let first = (0..self.len)
