@@ -437,16 +437,6 @@ impl DecisionInput {
             }
         }
     }
-
-    /// This snapshot with the speeds the decision may credit `tracked`'s confirmed obstacle
-    /// ([`crate::perception::Tracked::decision_speed`], [`crate::perception::Tracked::slow_speed`]).
-    pub fn crediting(self, tracked: &crate::perception::Tracked) -> Self {
-        Self {
-            obstacle_speed: tracked.decision_speed(),
-            obstacle_speed_slow: tracked.slow_speed(),
-            ..self
-        }
-    }
 }
 
 /// What to send, and what to log.

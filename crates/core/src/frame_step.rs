@@ -62,14 +62,13 @@ impl Outcome {
     /// What the decider is given from this generation at `speed` (m/s), its evidence
     /// `latency` seconds old, with CAMERA_ERROR when a sensor check failed.
     pub fn decision_input(&self, speed: f64, latency: f64) -> DecisionInput {
-        DecisionInput {
+        self.report.tracked.credit(DecisionInput {
             global_warning: self.report.stats.global_warning,
             obstacle: self.report.tracked.decision_distance(),
             latency,
             faults: camera_error(self.sensor.faults),
             ..DecisionInput::at_speed(None, speed)
-        }
-        .crediting(&self.report.tracked)
+        })
     }
 }
 

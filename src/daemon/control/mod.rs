@@ -426,12 +426,11 @@ impl<B: CanBus> ControlThread<B> {
     /// command is decided).
     fn input_at(&self, snapshot: &Snapshot, now: Duration) -> DecisionInput {
         let age = now.saturating_sub(snapshot.capture_time());
-        DecisionInput {
+        snapshot.tracked.credit(DecisionInput {
             global_warning: snapshot.global_warning,
             latency: (age + self.frame_period).as_secs_f64(),
             ..DecisionInput::at_speed(snapshot.confirmed_distance(), self.speed(now))
-        }
-        .crediting(&snapshot.tracked)
+        })
     }
 
     /// Records a snapshot taken and what it told the decider (`input`, at `now`).

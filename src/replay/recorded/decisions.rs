@@ -110,12 +110,11 @@ pub(super) fn replay_decisions(
                         );
                     }
                 }
-                let input = DecisionInput {
+                let input = o.tracked.credit(DecisionInput {
                     global_warning: o.global_warning,
                     latency: p.latency,
                     ..DecisionInput::at_speed(o.obstacle, p.speed)
-                }
-                .crediting(&o.tracked);
+                });
                 if let Some(r) = recorder {
                     let observed = crate::record::Observed {
                         generation: p.generation,
@@ -147,15 +146,14 @@ pub(super) fn replay_decisions(
                         // The newest snapshot again, as the daemon recorded it.
                         let latest = || {
                             d.latest_generation.and_then(outcome).map(|o| {
-                                DecisionInput {
+                                o.tracked.credit(DecisionInput {
                                     global_warning: o.global_warning,
                                     latency: d.latest_latency.unwrap_or(f64::NAN),
                                     ..DecisionInput::at_speed(
                                         o.obstacle,
                                         d.latest_speed.unwrap_or(f64::NAN),
                                     )
-                                }
-                                .crediting(&o.tracked)
+                                })
                             })
                         };
                         // The daemon's choice, as it recorded it: a recording that dropped

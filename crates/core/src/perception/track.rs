@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::motion::{History, ObstacleMotion};
 use super::obstacle::{Obstacle, PerceptionParamError};
+use crate::decision::DecisionInput;
 
 /// Frames to confirm and to release an obstacle, and what a sighting must agree with.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -113,6 +114,16 @@ impl Tracked {
     /// as [`Tracked::decision_speed`], less [`SLOW_CREDIT_SIGMAS`] standard errors.
     pub fn slow_speed(&self) -> f64 {
         self.credited(SLOW_CREDIT_SIGMAS)
+    }
+
+    /// `input` with the speeds the decision may credit the confirmed obstacle: STOP's
+    /// ([`Tracked::decision_speed`]) and SLOW's ([`Tracked::slow_speed`]).
+    pub fn credit(&self, input: DecisionInput) -> DecisionInput {
+        DecisionInput {
+            obstacle_speed: self.decision_speed(),
+            obstacle_speed_slow: self.slow_speed(),
+            ..input
+        }
     }
 
     fn credited(&self, sigmas: f64) -> f64 {
