@@ -169,18 +169,12 @@ pub(super) fn nearest_cluster(
         // whose unique flies were mostly on one of its vertical edges (14 of 20 on hw-mock's
         // car, the rest on its other edge and plate) had the width of that edge, and was
         // dropped as one.
-        members.sort_unstable_by_key(|u| (u64::from(u.cell) << 32) | u64::from(u.index));
-        let mut us = [0f32; 256];
-        let mut xs = [0f32; 256];
-        let (mut n, mut from) = (0, 0);
-        while from < members.len() && n < us.len() {
-            let cell = members[from].cell;
-            let pile = &members[from..];
-            let k = pile.iter().take_while(|u| u.cell == cell).count();
-            let mean = |f: fn(&Unique) -> f32| pile[..k].iter().map(f).sum::<f32>() / k as f32;
-            (us[n], xs[n]) = (mean(|u| u.u), mean(|u| u.x));
+        let (mut us, mut xs) = ([0f32; 256], [0f32; 256]);
+        let mut n = 0;
+        for (pile, (su, sx)) in by_cell(members).zip(us.iter_mut().zip(xs.iter_mut())) {
+            let mean = |f: fn(&Unique) -> f32| pile.iter().map(f).sum::<f32>() / pile.len() as f32;
+            (*su, *sx) = (mean(|u| u.u), mean(|u| u.x));
             n += 1;
-            from += k;
         }
         let across = 4.0 * mad(&mut us[..n]) >= MIN_WIDTH_PX
             && f64::from(4.0 * mad(&mut xs[..n])) >= c.min_width;
@@ -196,24 +190,20 @@ pub(super) fn nearest_cluster(
 /// cells' median distances ([`super::Obstacle::centre`]); 0 for none. Reorders `members` (by
 /// cell, then distance); `scratch` holds the cells' medians.
 pub(super) fn cell_centre(members: &mut [Unique], scratch: &mut Vec<f32>) -> f32 {
-    members.sort_unstable_by_key(|u| (u64::from(u.cell) << 32) | u64::from(ordered(u.along)));
     scratch.clear();
-    let mut from = 0;
-    while from < members.len() {
-        let cell = members[from].cell;
-        let to = from
-            + members[from..]
-                .iter()
-                .take_while(|u| u.cell == cell)
-                .count();
-        scratch.push(members[(from + to) / 2].along);
-        from = to;
-    }
+    scratch.extend(by_cell(members).map(|pile| pile[pile.len() / 2].along));
     if scratch.is_empty() {
         return 0.0;
     }
     let mid = scratch.len() / 2;
     *scratch.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// `members` by cell, then distance along the path, and each cell's flies in turn: the piles
+/// the cell rules count once.
+fn by_cell(members: &mut [Unique]) -> impl Iterator<Item = &[Unique]> {
+    members.sort_unstable_by_key(|u| (u64::from(u.cell) << 32) | u64::from(ordered(u.along)));
+    members.chunk_by(|a, b| a.cell == b.cell)
 }
 
 /// Step 4's last rule: whether a cluster's lowest fly is at most `max_bottom` above the road
