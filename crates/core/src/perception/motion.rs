@@ -17,11 +17,11 @@
 //!
 //! The motion is *established* once [`MIN_SAMPLES`] sightings span [`MIN_SPAN`] seconds and
 //! the speed's standard error is at most [`MAX_SIGMA`]: at 30 fps about a quarter of a second
-//! after the track starts, at 10 fps about 0.7 s. The decision credits an obstacle its speed
-//! less two standard errors, so a wide error credits little; 1.5 m/s lets a car followed 22
-//! m ahead on hw-mock's rig count (1.27 m/s there: a pixel of disparity is 3.3 m), which at
-//! 1 m/s counted as still, and was STOPped for at 40 km/h. Until then the obstacle counts as still
-//! (the conservative rule). The fit assumes a constant velocity over the window (0.5 s at
+//! after the track starts, at 10 fps about 0.7 s. Until then the obstacle counts as still
+//! (the conservative rule). The decision credits an obstacle its speed less two standard
+//! errors, so a wide error credits little; 1.5 m/s lets a car followed 22 m ahead on
+//! hw-mock's rig count (1.27 m/s there: a pixel of disparity is 3.3 m), which at 1 m/s
+//! counted as still, and was STOPped for at 40 km/h. The fit assumes a constant velocity over the window (0.5 s at
 //! 30 fps): an obstacle that brakes shows as its mean speed over the window, late by about
 //! half of it.
 
