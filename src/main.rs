@@ -141,11 +141,15 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
     };
     let prepared = request.prepare(&config).context("replay")?;
     let record = args.record.as_deref();
+    let declared_height = prepared.feed.rig().left.centre().y;
     let summary =
         replay::command::replay_to(prepared, &config, &out, record, args.config.as_deref())
             .context("replay")?;
     if let Some(note) = &summary.note {
         eprintln!("flyd replay: note: {note}");
+    }
+    for warning in summary.mount_warnings(declared_height) {
+        eprintln!("flyd replay: warning: {warning}");
     }
     say!("{}", serde_json::to_string_pretty(&summary)?)?;
     Ok(())

@@ -1256,3 +1256,66 @@ fn a_replay_of_a_standing_vehicle_says_why_it_does_not_brake() {
     assert!(summary.get("note").is_none(), "{stdout}");
     assert!(!stderr.contains("note:"), "{stderr}");
 }
+
+/// A camera placed wrong on the vehicle hides what it exists to see (issue 57: the aanet pair
+/// replayed with only its Middlebury-style calib.txt said CLEAR, nothing on stderr, with a car
+/// 12.4 m ahead). The replay says what it assumed of the mount, and where the road measured
+/// disagrees with a mount given wrong; given right, it says nothing of the mount.
+#[test]
+fn a_replay_says_what_it_assumed_of_the_mount_and_where_the_road_disagrees() {
+    let pair = repo("tests/fixtures/kitti/kitti2015_000151_aanet_demo");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("out").display().to_string();
+    let replay = |calib: &str| {
+        let (ok, stdout, stderr) = flyd(&[
+            "replay",
+            "--left",
+            &format!("{pair}/im0.png"),
+            "--right",
+            &format!("{pair}/im1.png"),
+            "--calib",
+            calib,
+            "--generations",
+            "60",
+            "--out",
+            &out,
+        ]);
+        assert!(ok, "{stderr}");
+        let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary JSON");
+        (summary, stderr)
+    };
+    let (summary, stderr) = replay(&format!("{pair}/calib.txt"));
+    assert!(
+        stderr.contains("warning: a Middlebury calib.txt places no camera on the vehicle")
+            && stderr.contains("[mount] position = [x, height, z]"),
+        "{stderr}"
+    );
+    assert!(summary["mount_assumed"].is_string(), "{summary}");
+    // The same calibration imported by rig files: the KITTI car's camera is 1.65 m up.
+    let rig = |height: f64| {
+        let path = dir.path().join(format!("rig-{height}.toml"));
+        std::fs::write(
+            &path,
+            format!(
+                "[import]\nfile = {:?}\n[mount]\nposition = [-0.06, {height:?}, 0.0]\n",
+                format!("{pair}/calib.txt")
+            ),
+        )
+        .expect("write");
+        path.display().to_string()
+    };
+    let (summary, stderr) = replay(&rig(1.2));
+    assert_eq!(summary["mount"]["verdict"], "DISAGREES", "{summary}");
+    assert!(summary["mount"]["height_off"] == true, "{summary}");
+    let h = summary["mount"]["road_height"].as_f64().expect("height");
+    assert!((-0.6..=-0.3).contains(&h), "the road 0.45 m below: {h}");
+    assert!(
+        stderr.contains("warning: the mount disagrees with the road")
+            && stderr.contains("not 1.20 m as declared ([mount] position"),
+        "{stderr}"
+    );
+    let (summary, stderr) = replay(&rig(1.65));
+    assert_eq!(summary["mount"]["verdict"], "AGREES", "{summary}");
+    assert!(summary.get("mount_assumed").is_none(), "{summary}");
+    assert!(!stderr.contains("mount"), "{stderr}");
+}

@@ -506,6 +506,7 @@ impl DaemonConfig {
             has_road: true,
             right_row_offset_px: 0.0,
             measure_rows: true,
+            mount_assumed: None,
         };
         let cal = match &self.calibration {
             CalibrationSource::Rig(rig) => built((**rig).clone()),
@@ -532,6 +533,16 @@ impl DaemonConfig {
                     self.cameras.height
                 )));
             }
+        }
+        // A camera's height decides every obstacle's: flyd does not guess it on a vehicle
+        // (replay and eval say what they assumed instead).
+        if let Some(assumed) = cal.mount_assumed {
+            return Err(invalid(format!(
+                "{assumed}; flyd does not guess where the cameras are on a vehicle: write a rig \
+                 file with [import] file = \"...\" and [mount] position = [x, height, z] \
+                 (metres: the left camera's place, its height above the road), pitch_deg and \
+                 roll_deg (the format: crates/core/src/calib/rig.rs)"
+            )));
         }
         Ok(cal)
     }

@@ -337,3 +337,49 @@ fn sensor_table_documents_its_defaults_and_bounds() {
         );
     }
 }
+
+/// `flyd run` (and `check-config`) refuse a calibration that does not say where the cameras
+/// are on the vehicle: a camera's height decides every obstacle's (issue 57). With the mount
+/// given, the same calibration loads.
+#[test]
+fn a_calibration_without_a_mount_is_refused_naming_what_to_add() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let calib = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/kitti/kitti2015_000151_aanet_demo/calib.txt");
+    let load = |rig_text: Option<String>| {
+        let file = match rig_text {
+            Some(text) => {
+                let rig = dir.path().join("rig.toml");
+                std::fs::write(&rig, text).expect("write");
+                rig
+            }
+            None => calib.clone(),
+        };
+        let config = MINIMAL
+            .replace(
+                "file = \"rig.toml\"",
+                &format!("file = {:?}", file.display().to_string()),
+            )
+            .replace("width = 640", "width = 1242")
+            .replace("height = 480", "height = 375");
+        parse(&config).expect("config").load_calibration()
+    };
+    let import = format!("[import]\nfile = {:?}\n", calib.display().to_string());
+    let e = load(None).expect_err("no mount: refused");
+    let msg = flyd_core::chain::Chain(&e).to_string();
+    assert!(
+        msg.contains("Middlebury calib.txt places no camera on the vehicle")
+            && msg.contains("[mount] position = [x, height, z]"),
+        "{msg}"
+    );
+    // Imported by a rig file without a mount: refused by the rig file's own check.
+    let e = load(Some(import.clone())).expect_err("no mount: refused");
+    let msg = flyd_core::chain::Chain(&e).to_string();
+    assert!(msg.contains("mount.position"), "{msg}");
+    let mounted = load(Some(format!(
+        "{import}[mount]\nposition = [-0.06, 1.65, 0.0]\n"
+    )))
+    .expect("with its mount");
+    assert_eq!(mounted.mount_assumed, None);
+    assert!((mounted.rig.left.centre().y - 1.65).abs() < 1e-9);
+}

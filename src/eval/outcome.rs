@@ -41,6 +41,9 @@ pub struct Outcome {
     pub speed_source: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub motion_source: Option<String>,
+    /// The declared mount against the road measured (none: the run did not finish).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mount: Option<flyd_core::perception::mount_check::MountReport>,
     /// Against the item's `truth`, when it has one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<Accuracy>,
@@ -163,6 +166,7 @@ impl Outcome {
             motion_source: summary.motion_source.clone(),
             stop_after: summary.reaction.and_then(|r| r.stop_command_after),
             closed_loop: run.closed_loop.clone(),
+            mount: Some(summary.mount),
             ..Self::default()
         };
         for r in run.trace.iter().filter(perception_alarm) {

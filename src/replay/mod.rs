@@ -188,6 +188,9 @@ pub struct Settings {
     /// Measure the residual of a rectified pair's rows on the first frame and correct it
     /// (`rectification.measure`; a rig that is not rectified is not measured).
     pub measure_rows: bool,
+    /// What was assumed of the cameras' mount, when the calibration gives none
+    /// ([`flyd_core::calib::Calibration::mount_assumed`]).
+    pub mount_assumed: Option<&'static str>,
 }
 
 /// Generations the daemon runs per frame of a video at `fps` that changes every frame (a

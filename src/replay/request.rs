@@ -105,6 +105,8 @@ impl Request {
         let mut right_row_shift = 0.0;
         // A scenario's rig is hw-mock's, not rectified: the replay says so and measures nothing.
         let mut measure_rows = true;
+        // What was assumed of a calibration's mount (hw-mock's rigs are placed).
+        let mut mount_assumed = None;
         let (feed, generations, per_frame, fps): (Box<dyn FrameFeed>, u64, u64, f64) =
             match &self.source {
                 Source::Scenario {
@@ -179,6 +181,7 @@ impl Request {
                     cal.apply_to(&mut params);
                     right_row_shift = cal.right_row_offset_px;
                     measure_rows = cal.measure_rows;
+                    mount_assumed = cal.mount_assumed;
                     let per_frame = self
                         .generations_per_frame
                         .unwrap_or_else(|| daemon_generations_per_frame(&config.evolution, *fps))
@@ -191,6 +194,7 @@ impl Request {
                     cal.apply_to(&mut params);
                     right_row_shift = cal.right_row_offset_px;
                     measure_rows = cal.measure_rows;
+                    mount_assumed = cal.mount_assumed;
                     // A still camera filming the pair at 30 fps, 3 generations a frame (no
                     // change, so no burst): what the daemon sees standing in front of that scene.
                     let per_frame = self.generations_per_frame.unwrap_or(3).max(1);
@@ -218,6 +222,7 @@ impl Request {
             blind_pairs: config.evolution.blind_pairs,
             right_row_shift,
             measure_rows,
+            mount_assumed,
         };
         Ok(Prepared { feed, settings })
     }

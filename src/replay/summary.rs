@@ -4,6 +4,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use flyd_core::decision::{Command, CommandReason};
+use flyd_core::perception::mount_check::{MountCheck, MountReport};
 use flyd_core::perception::{Obstacle, RoadEstimate};
 use serde::Serialize;
 
@@ -172,6 +173,12 @@ pub struct Summary {
     pub row_offset: RowOffsetReport,
     /// How that correction was chosen: the rig's, or measured on the first frame.
     pub row_correction: Option<flyd_core::rectification::RowCorrection>,
+    /// The declared mount against the road measured on every frame
+    /// ([`flyd_core::perception::mount_check`]).
+    pub mount: MountReport,
+    /// What was assumed of the mount, when the calibration gives none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mount_assumed: Option<&'static str>,
     /// A closed loop's outcome: contact, gap, braking ([`super::closed_loop`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<super::closed_loop::ClosedLoopReport>,
@@ -192,6 +199,32 @@ pub struct RowOffsetReport {
 }
 
 impl Summary {
+    /// What a person must be told of the mount on stderr: what was assumed of it, and where
+    /// the road disagrees with it ([`MountReport::advice`]).
+    pub fn mount_warnings(&self, declared_height: f64) -> Vec<String> {
+        let m = &self.mount;
+        match self.mount_assumed {
+            // What the road said is measured from the assumed mount: said as it is.
+            Some(assumed) => {
+                let road = if m.frames > 0 {
+                    format!(
+                        "; the road measured lies {:.2} m from where that mount puts it, rising \
+                         {:.1} degrees ahead",
+                        m.road_height, m.road_pitch_deg
+                    )
+                } else {
+                    String::new()
+                };
+                vec![format!(
+                    "{assumed}{road}. Where the cameras are on a vehicle, a rig file must say: \
+                     [import] file = \"...\" and [mount] position = [x, height, z] (the format: \
+                     crates/core/src/calib/rig.rs)"
+                )]
+            }
+            None => m.advice(declared_height).into_iter().collect(),
+        }
+    }
+
     /// The summary of `replay`, written to `out`.
     pub fn of(replay: &Replay, out: &Path, reaction: Option<Reaction>) -> Self {
         let engine = replay.perception.engine();
@@ -272,6 +305,12 @@ impl Summary {
                 measured: replay.row_offset,
             },
             row_correction: replay.row_correction,
+            mount: {
+                let mut check = MountCheck::default();
+                replay.frame_ends().for_each(|r| check.add(&r.road));
+                check.report()
+            },
+            mount_assumed: replay.settings.mount_assumed,
             per_frame,
         }
     }

@@ -73,7 +73,20 @@ pub struct Calibration {
     /// (`rectification.measure` of a rig file, default true; the other formats: true). Only a
     /// rectified rig is measured ([`crate::geometry::StereoRig::is_rectified`]).
     pub measure_rows: bool,
+    /// Where the cameras were placed on the vehicle when nothing placed them (a format that
+    /// carries no mount, a rig file's import without `[mount] position`), said for a person;
+    /// none when the file gives the mount. A wrong height hides obstacles
+    /// ([`crate::perception::mount_check`]): `flyd run` refuses a rig with one.
+    pub mount_assumed: Option<&'static str>,
 }
+
+/// What [`Calibration::mount_assumed`] says for a file of each format on its own.
+pub(crate) const OPENCV_MOUNT: &str = "an OpenCV calibration places no camera on the vehicle: \
+     the left camera was taken 1.2 m above the road, level, on the vehicle's axis";
+pub(crate) const MIDDLEBURY_MOUNT: &str = "a Middlebury calib.txt places no camera on the \
+     vehicle: the left camera was taken at the road's level, in a scene without a road";
+pub(crate) const KITTI_MOUNT: &str = "a KITTI calibration places the cameras as on the KITTI \
+     car: the left camera 1.65 m above the road, level";
 
 impl Calibration {
     /// What the file says about the search: its depth range replaces the engine's, and a scene

@@ -230,6 +230,7 @@ pub fn parse_kitti(
         has_road: true,
         right_row_offset_px: 0.0,
         measure_rows: true,
+        mount_assumed: Some(crate::calib::KITTI_MOUNT),
     })
 }
 

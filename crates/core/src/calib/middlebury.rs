@@ -242,6 +242,7 @@ pub fn parse_middlebury(text: &str, origin: &Path) -> Result<Calibration, CalibE
         has_road: false,
         right_row_offset_px: 0.0,
         measure_rows: true,
+        mount_assumed: Some(crate::calib::MIDDLEBURY_MOUNT),
     })
 }
 

@@ -120,6 +120,7 @@ pub fn parse_opencv_yaml(
         has_road: true,
         right_row_offset_px: 0.0,
         measure_rows: true,
+        mount_assumed: Some(crate::calib::OPENCV_MOUNT),
     })
 }
 

@@ -208,15 +208,21 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
                 "give one of [left] and [right], [opencv] or [import]",
             ));
         }
-        let rig = import_any(origin, import, file.mount, depth_range)?;
+        let (rig, mount_assumed) = import_any(origin, import, file.mount, depth_range)?;
         return Ok(Calibration {
             rig,
             depth_range,
             has_road: search.road.unwrap_or(true),
             right_row_offset_px,
             measure_rows,
+            mount_assumed,
         });
     }
+    // Explicit cameras give their own positions; an [opencv] section without one, the
+    // import's default.
+    let mount_assumed = (file.opencv.is_some()
+        && file.mount.as_ref().is_none_or(|m| m.position.is_none()))
+    .then_some(crate::calib::OPENCV_MOUNT);
     let rig = match (file.left, file.right, file.opencv) {
         (Some(_), _, Some(_)) | (_, Some(_), Some(_)) => {
             return Err(field_error(
@@ -254,6 +260,7 @@ pub fn parse_rig_toml(text: &str, origin: &Path) -> Result<Calibration, CalibErr
         has_road: search.road.unwrap_or(true),
         right_row_offset_px,
         measure_rows,
+        mount_assumed,
     })
 }
 

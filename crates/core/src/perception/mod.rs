@@ -13,6 +13,7 @@
 pub mod crossing;
 pub mod dense;
 pub mod motion;
+pub mod mount_check;
 pub mod obstacle;
 pub mod range;
 pub mod road_estimator;

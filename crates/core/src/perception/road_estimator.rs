@@ -163,6 +163,9 @@ pub struct RoadEstimate {
     pub inliers: usize,
     /// Their RMS distance to the fitted plane, metres (NaN without a fit).
     pub rms: f64,
+    /// The latest frame's fit as measured, before the bounds and the smoothing (none: no
+    /// measurement): what the mount is checked against ([`super::mount_check`]).
+    pub fitted: Option<RoadPlane>,
 }
 
 impl RoadEstimate {
@@ -173,6 +176,7 @@ impl RoadEstimate {
             source: RoadSource::Prior,
             inliers: 0,
             rms: f64::NAN,
+            fitted: None,
         }
     }
 
@@ -250,6 +254,7 @@ impl RoadEstimator {
                 inliers: fit.map_or(0, |f| f.inliers),
                 rms: fit.map_or(f64::NAN, |f| f.rms),
                 plane: self.prior,
+                fitted: None,
             };
         };
         let p = self.prior;
@@ -280,6 +285,7 @@ impl RoadEstimator {
             source,
             inliers: fit.inliers,
             rms: fit.rms,
+            fitted: Some(fit.plane),
         }
     }
 }

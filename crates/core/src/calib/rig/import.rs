@@ -7,13 +7,15 @@ use super::{
     rotation_from_angles,
 };
 
-/// An `[import]`: the file read as its format says, then placed by `mount` if given.
+/// An `[import]`: the file read as its format says, then placed by `mount` if given; and
+/// what was assumed of the mount when `mount` gives no position
+/// ([`crate::calib::Calibration::mount_assumed`]).
 pub(super) fn import_any(
     file: &Path,
     import: &ImportToml,
     mount: Option<MountToml>,
     depth_range: Option<(f64, f64)>,
-) -> Result<StereoRig, CalibError> {
+) -> Result<(StereoRig, Option<&'static str>), CalibError> {
     let size = paired(
         file,
         (import.width, "import.width"),
@@ -97,8 +99,13 @@ pub(super) fn import_any(
         None => Err(CalibError::UnknownFormat { file: path.clone() }),
     }
     .map_err(as_import)?;
+    let assumed = if mount.as_ref().is_some_and(|m| m.position.is_some()) {
+        None
+    } else {
+        imported.mount_assumed
+    };
     let Some(mount) = mount else {
-        return Ok(imported.rig);
+        return Ok((imported.rig, assumed));
     };
     let (centre, rotation) = mount_pose(file, &mount, imported.rig.left.centre())?;
     let rig = imported
@@ -119,7 +126,7 @@ pub(super) fn import_any(
             position: ["mount", "mount"],
         },
     )?;
-    Ok(rig)
+    Ok((rig, assumed))
 }
 
 /// The left camera's pose a `[mount]` gives: its position (`default` if none) and orientation.
