@@ -25,8 +25,9 @@ use super::road_estimator::RoadEstimate;
 pub const WINDOW: f64 = 300.0;
 /// The mount disagrees with the road when the road measured lies further than this above or
 /// below it, metres. On the KITTI pairs and drive of `eval/real.toml` with their true mount the
-/// road lies within 0.10 m of it; with the mount 0.3 m too low or too high, 0.20-0.50 m.
-pub const HEIGHT_TOLERANCE: f64 = 0.15;
+/// road lies within 0.10 m of it (hw-mock's ramp-30, 0.145 m); with the mount 0.3 m too low
+/// or too high, 0.20-0.75 m.
+pub const HEIGHT_TOLERANCE: f64 = 0.17;
 /// ... or rises ahead by more than this, degrees. Real roads rise up to 2.0 degrees on those
 /// pairs under their true mount: on one frame a camera's pitch is not told from the road's
 /// grade, so only a larger one is said.
