@@ -319,3 +319,54 @@ fn stereo_skew_over_tolerance_raises_its_fault() {
     let (report, _) = d.stop();
     assert!(report.pair_rejects >= 3, "{report:?}");
 }
+
+/// A mount declared 0.5 m higher than the cameras are (a wrong `[mount] position`, a camera
+/// moved on its bracket): the road measured lies 0.5 m above where the mount puts it, more than
+/// the road estimator's 0.3 m absorbs, so every height flyd measures is off. Once 30 measured
+/// frames say so, the status carries INTERNAL (configuration) and the command is at least the
+/// safe one (issue 57). The cameras declared where they are raise nothing (every other test here waits
+/// for RUNNING on the same scene).
+#[test]
+fn a_mount_declared_half_a_metre_high_is_a_fault_with_at_least_the_safe_command() {
+    let rig = rig();
+    let declared = rig
+        .placed(
+            rig.left.centre() + nalgebra::Vector3::new(0.0, 0.5, 0.0),
+            flyd_core::geometry::rotation_from_angles(0.0, 0.0, 0.0),
+        )
+        .expect("the rig, moved up");
+    let mut c = config();
+    c.calibration = flyd::config::CalibrationSource::Rig(Box::new(declared));
+    let d = start(c);
+    let frames = d.wait_for("INTERNAL with the safe command", |f| {
+        let i = f.iter().position(
+            |x| matches!(x, Frame::Status(s, _) if s.faults.contains(FaultBits::INTERNAL)),
+        );
+        i.is_some_and(|i| commands(&f[i..]).len() >= 3)
+    });
+    let (report, _) = d.stop();
+    let raised_at = frames
+        .iter()
+        .position(|x| matches!(x, Frame::Status(s, _) if s.faults.contains(FaultBits::INTERNAL)))
+        .expect("raised");
+    let mut internal = true;
+    let mut checked = 0;
+    for f in &frames[raised_at..] {
+        match f {
+            Frame::Status(s, _) => {
+                internal = s.faults.contains(FaultBits::INTERNAL);
+                if internal {
+                    assert_eq!(s.state, State::Degraded, "{s:?}");
+                }
+            }
+            // The safe command at least (a STOP the perception asks for stays a STOP).
+            Frame::Command(c, _) if internal => {
+                assert!(c.command >= Command::Slow, "{}", summary(&frames));
+                checked += 1;
+            }
+            _ => {}
+        }
+    }
+    assert!(checked >= 3, "{checked} commands checked");
+    assert!(report.control.faults_seen.contains(FaultBits::INTERNAL));
+}

@@ -38,6 +38,7 @@ use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
 use flyd_core::frame_step::{FrameStep, NewPair};
 use flyd_core::pairing::{PairOutcome, Pairer};
+use flyd_core::perception::mount_check::{MountCheck, MountVerdict};
 use flyd_core::perception::{RoadEstimate, RoadSource};
 use flyd_core::policy::Blindness;
 use flyd_core::sensor::{ImageHealth, SensorFaults, SensorVerdict};
@@ -77,6 +78,13 @@ pub struct EvolutionThread {
     pub recorder: Option<crate::record::Recorder>,
     /// Hands a pair now and then to the worker that measures the right image's rows.
     pub rows: Option<super::rows::RowsMonitor>,
+    /// The declared mount against each new pair's road, the left camera's declared height
+    /// (metres, for the log) and the road estimator's `max_height_change` (the fault's bound).
+    pub mount: MountCheck,
+    pub declared_height: f64,
+    pub max_height_change: f64,
+    /// The verdict last logged.
+    pub mount_verdict: MountVerdict,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -126,7 +134,13 @@ impl EvolutionThread {
             let (report, stats) = (outcome.report, outcome.report.stats);
             if stats.new_frame {
                 self.log_road(&report.road);
+                // A camera at fault shows no road to check the mount against.
+                if outcome.sensor.faults.is_empty() {
+                    self.mount.add(&report.road);
+                    self.log_mount();
+                }
             }
+            let mount = self.mount.report();
             let finished = self.clock.now();
             if stats.new_frame
                 && stats.generation >= self.config.warmup_generations
@@ -194,6 +208,8 @@ impl EvolutionThread {
                 visible: stats.visible,
                 new_frame: stats.new_frame,
                 road: report.road,
+                mount,
+                mount_fault: mount.hides(self.max_height_change),
                 tracked: report.tracked,
                 corridor: report.corridor,
                 path: self.step.perception().path_estimate(),
@@ -270,6 +286,36 @@ impl EvolutionThread {
             self.road_source = Some(road.source);
         }
         road!(debug, "road");
+    }
+
+    /// Logs the mount check when its verdict changes: a WARN naming what disagrees (the
+    /// measured and declared values and the key to fix), an INFO when it agrees.
+    fn log_mount(&mut self) {
+        let r = self.mount.report();
+        if r.verdict == self.mount_verdict {
+            return;
+        }
+        self.mount_verdict = r.verdict;
+        let fault = r.hides(self.max_height_change);
+        match r.advice(self.declared_height) {
+            Some(advice) => tracing::warn!(
+                road_height_m = crate::logging::shown(r.road_height, 3),
+                road_pitch_deg = crate::logging::shown(r.road_pitch_deg, 2),
+                road_roll_deg = crate::logging::shown(r.road_roll_deg, 2),
+                declared_height_m = crate::logging::shown(self.declared_height, 3),
+                frames = r.frames,
+                fault,
+                "{advice}"
+            ),
+            None => tracing::info!(
+                road_height_m = crate::logging::shown(r.road_height, 3),
+                road_pitch_deg = crate::logging::shown(r.road_pitch_deg, 2),
+                road_roll_deg = crate::logging::shown(r.road_roll_deg, 2),
+                frames = r.frames,
+                verdict = %r.verdict,
+                "the mount agrees with the road measured"
+            ),
+        }
     }
 
     /// Sleeps up to `wait`, in slices of at most [`FRAME_POLL`], until either camera publishes

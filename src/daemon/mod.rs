@@ -369,6 +369,10 @@ pub fn run(
         motion: config.motion().map(|_| motion.clone()),
         recorder: recorder.clone(),
         rows: Some(rows_monitor),
+        mount: flyd_core::perception::mount_check::MountCheck::default(),
+        declared_height: rig.left.centre().y,
+        max_height_change: config.perception.road.max_height_change,
+        mount_verdict: flyd_core::perception::mount_check::MountVerdict::Unmeasured,
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {

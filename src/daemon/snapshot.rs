@@ -34,6 +34,11 @@ pub struct Snapshot {
     pub new_frame: bool,
     /// The road the heights are measured from.
     pub road: RoadEstimate,
+    /// The declared mount against the road measured so far
+    /// ([`flyd_core::perception::mount_check`]), and whether it is off by more than the road
+    /// estimator absorbs (the INTERNAL fault).
+    pub mount: flyd_core::perception::mount_check::MountReport,
+    pub mount_fault: bool,
     /// The nearest obstacle in the corridor, debounced over frames.
     pub tracked: Tracked,
     /// What the latest obstacle estimate looked at.

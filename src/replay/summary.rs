@@ -307,7 +307,10 @@ impl Summary {
             row_correction: replay.row_correction,
             mount: {
                 let mut check = MountCheck::default();
-                replay.frame_ends().for_each(|r| check.add(&r.road));
+                replay
+                    .frame_ends()
+                    .filter(|r| r.sensor.faults.is_empty())
+                    .for_each(|r| check.add(&r.road));
                 check.report()
             },
             mount_assumed: replay.settings.mount_assumed,

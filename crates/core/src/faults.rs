@@ -8,6 +8,7 @@
 //! | SNAPSHOT_STALE | no snapshot for `snapshot_timeout` (after start-up) | a snapshot arrives |
 //! | CAMERA_ERROR | a capture thread reports a device error (format, disconnect), or a sensor check fails ([`crate::sensor`]: an image uniform or without texture, frozen, exposures far apart, or the stereo pair matching nowhere; which one is `FLYD_Status.SensorFaults`) | that camera delivers again; the images are healthy again |
 //! | CAN_TX_ERROR | the last CAN write failed | a write succeeds |
+//! | INTERNAL | the newest snapshot says the declared mount is off by more than the road estimator absorbs ([`crate::perception::mount_check`]: the camera's height, over 30 measured frames) | the road agrees with the mount again |
 //!
 //! During start-up (until the daemon is running, at most `startup_timeout`), missing frames and
 //! snapshots are not faults: the state is INIT and the decider is already at its safe command.
@@ -37,6 +38,9 @@ pub struct Observation {
     /// The newest snapshot's sensor faults (uniform, frozen, mismatched, blind).
     pub sensor: SensorFaults,
     pub can_failing: bool,
+    /// The declared mount is off by more than the road estimator absorbs
+    /// ([`crate::perception::mount_check::MountReport::hides`]).
+    pub mount_fault: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -99,6 +103,7 @@ impl FaultMonitor {
             o.left_error || o.right_error || !o.sensor.is_empty(),
         );
         f.set(FaultBits::CAN_TX_ERROR, o.can_failing);
+        f.set(FaultBits::INTERNAL, o.mount_fault);
         f
     }
 
@@ -205,5 +210,6 @@ mod tests {
         check(|o| o.sensor = SensorFaults::BLIND, FaultBits::CAMERA_ERROR);
         check(|o| o.sensor = SensorFaults::FROZEN, FaultBits::CAMERA_ERROR);
         check(|o| o.can_failing = true, FaultBits::CAN_TX_ERROR);
+        check(|o| o.mount_fault = true, FaultBits::INTERNAL);
     }
 }

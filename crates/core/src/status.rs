@@ -31,7 +31,8 @@ bit_set! {
         const CAMERA_ERROR = 5 => "CAMERA_ERROR";
         /// bit 6: CAN transmission errors.
         const CAN_TX_ERROR = 6 => "CAN_TX_ERROR";
-        /// bit 7: configuration or internal error.
+        /// bit 7: configuration or internal error (the declared mount off by more than the
+        /// road estimator absorbs: [`crate::perception::mount_check`]).
         const INTERNAL = 7 => "INTERNAL";
     }
 }

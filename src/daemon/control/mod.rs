@@ -391,6 +391,7 @@ impl<B: CanBus> ControlThread<B> {
             overrun: s.latest.is_some_and(|l| l.overrun),
             sensor: s.latest.map_or(SensorFaults::empty(), |l| l.sensor),
             can_failing: s.can_failing,
+            mount_fault: s.latest.is_some_and(|l| l.mount_fault),
         };
         let faults = self.monitor.evaluate(&observation);
         let raised = faults & !s.faults;

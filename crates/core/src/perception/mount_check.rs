@@ -34,6 +34,8 @@ pub const HEIGHT_TOLERANCE: f64 = 0.17;
 pub const PITCH_TOLERANCE_DEG: f64 = 2.5;
 /// ... or across, degrees (KITTI 2012 #1 banks 4.5 degrees).
 pub const ROLL_TOLERANCE_DEG: f64 = 5.5;
+/// Measured frames before the daemon takes a disagreement for a fault ([`MountReport::hides`]).
+pub const FAULT_FRAMES: u32 = 30;
 
 named_enum! {
     /// What the road says about the declared mount.
@@ -78,6 +80,15 @@ pub struct MountReport {
 }
 
 impl MountReport {
+    /// Whether the mount is off by more than the road estimator absorbs, `max_height_change`
+    /// metres (`perception.road.max_height_change`), over at least [`FAULT_FRAMES`] measured
+    /// frames: every height flyd measures is then off by the rest, and an obstacle may sink
+    /// below the road or float above the corridor's reach. The daemon's fault (`INTERNAL`,
+    /// the safe command).
+    pub fn hides(&self, max_height_change: f64) -> bool {
+        self.frames >= FAULT_FRAMES && self.road_height.abs() > max_height_change
+    }
+
     /// What a person reading a log needs: the declared camera height `declared_height`
     /// (metres) and what the road says, with the key to fix; none when it agrees or was not
     /// measured.
@@ -136,11 +147,7 @@ impl MountCheck {
         let Some(p) = road.fitted else {
             return;
         };
-        let x = [
-            p.height,
-            p.slope_z.atan().to_degrees(),
-            p.slope_x.atan().to_degrees(),
-        ];
+        let x = [p.height, p.pitch_deg(), p.roll_deg()];
         if !x.iter().all(|v| v.is_finite()) {
             return;
         }
@@ -212,7 +219,7 @@ mod tests {
         let mut c = MountCheck::default();
         assert_eq!(c.report().verdict, MountVerdict::Unmeasured);
         // Declared 1.2 m up, really 1.65 m: the road lies 0.45 m below the declared one.
-        for i in 0..20 {
+        for i in 0..30 {
             c.add(&measured(-0.45 + 0.01 * f64::from(i % 3), 0.0, 0.0));
         }
         let r = c.report();
@@ -225,6 +232,15 @@ mod tests {
             "{advice}"
         );
         assert!(advice.contains("[mount] position"), "{advice}");
+        // 0.45 m is more than the road estimator's 0.3 m absorbs: the daemon's fault, once
+        // 30 frames say so.
+        assert!(r.hides(0.3) && !r.hides(0.5), "{r:?}");
+        let few = {
+            let mut c = MountCheck::default();
+            (0..29).for_each(|_| c.add(&measured(-0.45, 0.0, 0.0)));
+            c.report()
+        };
+        assert!(!few.hides(0.3), "{few:?}");
     }
 
     #[test]

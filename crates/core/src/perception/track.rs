@@ -173,6 +173,9 @@ struct Track {
     judged: bool,
     /// Its sightings in the ground frame ([`super::motion`]).
     history: History,
+    /// When it was first seen (the tracker's clock, seconds; a resumed track keeps its own):
+    /// a track seen over [`LONG_TRACK`] is held longer ([`LONG_HOLD`]).
+    since: f64,
 }
 
 /// Both tracks after the frames before the current one.
@@ -238,6 +241,15 @@ const RESUME_WITHIN: f64 = 3.0;
 /// left (beyond [`LATERAL_SLACK`]) at the same distance, started a new run that was confirmed
 /// two frames later as still, and the STOP that rule asks for was obeyed.
 const RESUME_LATERAL: f64 = 2.0;
+
+/// A confirmed track seen over at least this many seconds is held while missing for up to
+/// [`LONG_HOLD`] seconds after its newest sighting, not `release_frames`: what was there for a
+/// second does not vanish between two frames. hw-mock's car stopped across the left half of
+/// the path (`car-stationary-minus-50`, 20 km/h): SLOWed for to 8 km/h, its track released
+/// when its flies missed it 5 m ahead at the corridor's edge for 1 s, the driver drove on, and
+/// the STOP came 2.2 m ahead: contact at 12.5 km/h.
+pub const LONG_TRACK: f64 = 1.0;
+pub const LONG_HOLD: f64 = 1.0;
 
 /// A track that ends (released, replaced, or a run that broke off) is kept as `lost` to be
 /// resumed when it has a motion to carry it on ([`History::motion`]: three sightings) and its
@@ -407,6 +419,7 @@ impl Tracker {
                     misses: 0,
                     judged: t.judged || judged(&o),
                     history: with(t.history, &o),
+                    since: t.since,
                 });
                 bury(&mut lost, candidate.take());
             }
@@ -420,6 +433,7 @@ impl Tracker {
                         misses: 0,
                         judged: t.judged || judged(&o),
                         history: with(t.history, &o),
+                        since: t.since,
                     },
                     previous => {
                         // A new run where a track's motion carries it is that track seen
@@ -439,6 +453,7 @@ impl Tracker {
                             misses: 0,
                             judged: resumed.is_some_and(|l| l.judged) || judged(&o),
                             history: with(resumed.map_or_else(History::default, |l| l.history), &o),
+                            since: resumed.map_or(now, |l| l.since),
                         }
                     }
                 });
@@ -508,11 +523,17 @@ impl Tracker {
     }
 
     /// A confirmed track that missed the current frame: held where the vehicle's travel
-    /// brought it, or released.
+    /// (and its own motion) brought it, or released: after `release_frames` misses, or for
+    /// a track seen over [`LONG_TRACK`], [`LONG_HOLD`] seconds after its newest sighting
+    /// (sooner once the vehicle has reached it).
     fn missed(&self, t: Track) -> Option<Track> {
         let misses = t.misses.saturating_add(1);
         let last = self.shifted(&t.last, own_travel(&t, self.interval.1) - self.interval.0);
-        (misses < self.config.release_frames).then_some(Track { misses, last, ..t })
+        let now = self.odometer.1;
+        let long = t.history.newest().is_some_and(|(seen, _, _)| {
+            seen - t.since >= LONG_TRACK && now - seen <= LONG_HOLD && last.distance > 0.0
+        });
+        (misses < self.config.release_frames || long).then_some(Track { misses, last, ..t })
     }
 }
 
@@ -857,6 +878,39 @@ mod tests {
         t.moved(1.0, 0.1);
         let held = t.update(2, None).obstacle.expect("held");
         assert!((held.near - half_px(18.0)).abs() < 1e-9, "{held:?}");
+    }
+
+    /// A car stopped 20 m ahead, approached at 5 m/s and seen on every frame for 1.2 s, then
+    /// missed: held where the vehicle's travel brings it for a second after its last
+    /// sighting, then released; one seen for 0.3 s is released after three misses.
+    #[test]
+    fn a_long_seen_obstacle_is_held_for_a_second_after_its_last_sighting() {
+        let run = |seen_frames: u64| {
+            let mut t = tracker();
+            let dt = 0.1;
+            let mut d = 20.0;
+            let mut held = Vec::new();
+            for f in 0..seen_frames + 15 {
+                if f > 0 {
+                    t.moved(5.0 * dt, dt);
+                    d -= 5.0 * dt;
+                }
+                let r = t.update(f, (f < seen_frames).then(|| at(d)).flatten());
+                if f >= seen_frames {
+                    held.push(r.confirmed().map(|o| o.distance));
+                }
+            }
+            held
+        };
+        let long = run(13);
+        // About ten frames after the last sighting (1.0 s) held, coming nearer; then released.
+        assert!(long[..9].iter().all(Option::is_some), "{long:?}");
+        let first = long[0].expect("held");
+        assert!((first - 13.5).abs() < 1e-9, "{long:?}");
+        assert!(long[11..].iter().all(Option::is_none), "{long:?}");
+        let short = run(4);
+        assert!(short[..2].iter().all(Option::is_some), "{short:?}");
+        assert!(short[2..].iter().all(Option::is_none), "{short:?}");
     }
 
     #[test]
