@@ -38,7 +38,7 @@ use flyd_core::engine::EngineError;
 use flyd_core::frame::StereoFrame;
 use flyd_core::frame_step::{FrameStep, NewPair};
 use flyd_core::pairing::{PairOutcome, Pairer};
-use flyd_core::perception::mount_check::{MountCheck, MountVerdict};
+use flyd_core::perception::mount_check::{MountCheck, MountReport};
 use flyd_core::perception::{RoadEstimate, RoadSource};
 use flyd_core::policy::Blindness;
 use flyd_core::sensor::{ImageHealth, SensorFaults, SensorVerdict};
@@ -83,8 +83,9 @@ pub struct EvolutionThread {
     pub mount: MountCheck,
     pub declared_height: f64,
     pub max_height_change: f64,
-    /// The verdict last logged.
-    pub mount_verdict: MountVerdict,
+    /// Its report after the latest pair it took (what the snapshots carry; its verdict is
+    /// the one last logged).
+    pub mount_report: MountReport,
 }
 
 /// Granularity of the wait for a new frame between generations.
@@ -137,10 +138,12 @@ impl EvolutionThread {
                 // A camera at fault shows no road to check the mount against.
                 if outcome.sensor.faults.is_empty() {
                     self.mount.add(&report.road);
-                    self.log_mount();
+                    let now = self.mount.report();
+                    self.log_mount(&now);
+                    self.mount_report = now;
                 }
             }
-            let mount = self.mount.report();
+            let mount = self.mount_report;
             let finished = self.clock.now();
             if stats.new_frame
                 && stats.generation >= self.config.warmup_generations
@@ -290,12 +293,10 @@ impl EvolutionThread {
 
     /// Logs the mount check when its verdict changes: a WARN naming what disagrees (the
     /// measured and declared values and the key to fix), an INFO when it agrees.
-    fn log_mount(&mut self) {
-        let r = self.mount.report();
-        if r.verdict == self.mount_verdict {
+    fn log_mount(&self, r: &MountReport) {
+        if r.verdict == self.mount_report.verdict {
             return;
         }
-        self.mount_verdict = r.verdict;
         let fault = r.hides(self.max_height_change);
         match r.advice(self.declared_height) {
             Some(advice) => tracing::warn!(

@@ -372,7 +372,7 @@ pub fn run(
         mount: flyd_core::perception::mount_check::MountCheck::default(),
         declared_height: rig.left.centre().y,
         max_height_change: config.perception.road.max_height_change,
-        mount_verdict: flyd_core::perception::mount_check::MountVerdict::Unmeasured,
+        mount_report: flyd_core::perception::mount_check::MountCheck::default().report(),
     };
     threads.evolution = Some(
         spawn_named(EVOLUTION, move || evolution.run()).map_err(|error| DaemonError::Spawn {
