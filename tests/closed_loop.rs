@@ -148,3 +148,63 @@ at = 25.0
     );
     assert!(dir.path().join("out/plate/seed1/closed_loop.svg").is_file());
 }
+
+/// The shipped configuration with the zones beside the corridor watched 4 m out
+/// (`config/flyd.toml`'s comment says how), written with its rig into `dir`.
+fn watching_config(dir: &Path) -> std::path::PathBuf {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let shipped = std::fs::read_to_string(repo.join("config/flyd.toml")).expect("config");
+    let key = "# watch_half_width = 0.0";
+    assert_eq!(
+        shipped.matches(key).count(),
+        1,
+        "the shipped config names it once"
+    );
+    std::fs::copy(repo.join("config/rig.toml"), dir.join("rig.toml")).expect("rig");
+    let path = dir.join("flyd.toml");
+    std::fs::write(&path, shipped.replace(key, "watch_half_width = 4.0")).expect("write");
+    path
+}
+
+/// One closed-loop run of `name` from `eval/closed-loop/traffic.toml` with the watch on.
+fn watched_run(name: &str) -> serde_json::Value {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = watching_config(dir.path());
+    let case = Path::new(env!("CARGO_MANIFEST_DIR")).join("eval/closed-loop/traffic.toml");
+    let summary = flyd_json([
+        "replay".as_ref(),
+        "--case".as_ref(),
+        case.as_os_str(),
+        "--case-name".as_ref(),
+        name.as_ref(),
+        "--seed".as_ref(),
+        "1".as_ref(),
+        "--config".as_ref(),
+        config.as_os_str(),
+        "--out".as_ref(),
+        dir.path().join("out").as_os_str(),
+    ]);
+    let run = summary["closed_loop"].clone();
+    eprintln!("{name}: {run:#}");
+    run
+}
+
+#[test]
+fn with_the_zones_beside_the_corridor_watched_a_pedestrian_who_crosses_is_stopped_for() {
+    // Euro NCAP's CPFA-50 at 40 km/h: from the far side at 8 km/h; seen in the corridor only
+    // 0.5 s before the impact, where nothing stops the vehicle (the default's contact).
+    let run = watched_run("pedestrian-crossing-far-50-40kmh");
+    assert_eq!(run["contact"], false, "{run}");
+    assert!(run["first_stop_s"].as_f64().is_some(), "{run}");
+}
+
+#[test]
+fn with_the_zones_beside_the_corridor_watched_one_who_stops_at_the_kerb_is_not_stopped_for() {
+    // The same walk as CPNA-25 at 30 km/h, stopping 1.2 m short of the corridor: a SLOW is
+    // allowed, a STOP is not (it is asked at the latest moment, and they stop before it).
+    let run = watched_run("pedestrian-stops-at-kerb-30kmh");
+    assert_eq!(run["contact"], false, "{run}");
+    assert_eq!(run["first_stop_s"], serde_json::Value::Null, "{run}");
+    let peak = run["peak_decel"].as_f64().unwrap_or(0.0);
+    assert!(peak < 2.0, "{peak}");
+}

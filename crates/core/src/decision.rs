@@ -287,7 +287,13 @@ impl DecisionConfig {
     /// `obstacle` mode: the distance within which an obstacle asks for `command` (SLOW or
     /// STOP) at `speed` m/s: `v reaction_time + v^2 / (2 decel) + margin`, metres.
     pub fn reach(&self, command: Command, speed: f64) -> f64 {
-        let decel = self.decel_for(command);
+        self.reach_at(self.decel_for(command), speed)
+    }
+
+    /// The distance within which braking with `decel` m/s^2 must start at `speed` m/s to
+    /// stop short by the margin: `v reaction_time + v^2 / (2 decel) + margin`, metres (0
+    /// without a deceleration).
+    pub fn reach_at(&self, decel: f64, speed: f64) -> f64 {
         if decel <= 0.0 {
             return 0.0;
         }
@@ -341,6 +347,11 @@ pub struct DecisionInput {
     /// of two ([`crate::perception::Tracked::slow_speed`]); taken as `obstacle_speed` where
     /// that is higher.
     pub obstacle_speed_slow: f64,
+    /// The obstacle stands beside the corridor and is only predicted to walk into it
+    /// ([`crate::perception::crossing`]): STOP is asked at the latest moment the brakes still
+    /// stop short of it, its reach at `max_decel` (SLOW as for any obstacle). Someone who
+    /// walks towards the road and stops at its kerb is then braked for gently, if at all.
+    pub obstacle_entering: bool,
     /// The vehicle's speed, m/s (`obstacle` mode; NaN or negative is a fault there).
     pub speed: f64,
     /// `obstacle` mode: seconds the vehicle drives before the next evidence can change the
@@ -360,6 +371,7 @@ impl DecisionInput {
             obstacle: None,
             obstacle_speed: 0.0,
             obstacle_speed_slow: 0.0,
+            obstacle_entering: false,
             speed: 0.0,
             latency: 0.0,
             faults: FaultBits::empty(),
@@ -404,11 +416,19 @@ impl DecisionInput {
             (None, None) => 0.0,
         };
         let (obstacle_speed, obstacle_speed_slow) = (lower(Command::Stop), lower(Command::Slow));
+        // Taken as only entering when every obstacle of the two is.
+        let obstacle_entering = match (self.obstacle, other.obstacle) {
+            (Some(_), Some(_)) => self.obstacle_entering && other.obstacle_entering,
+            (Some(_), None) => self.obstacle_entering,
+            (None, Some(_)) => other.obstacle_entering,
+            (None, None) => false,
+        };
         Self {
             global_warning: high(self.global_warning, other.global_warning),
             obstacle,
             obstacle_speed,
             obstacle_speed_slow,
+            obstacle_entering,
             speed: high(self.speed, other.speed),
             latency: high(self.latency, other.latency),
             faults: self.faults | other.faults,
@@ -606,7 +626,11 @@ impl Decider {
                         let ratio = |command| {
                             let u = input.credited_for(command);
                             let d = d - (v - u) * latency;
-                            let reach = c.reach_behind(command, v, u);
+                            let reach = if command == Command::Stop && input.obstacle_entering {
+                                c.reach_at(c.max_decel.max(c.stop_decel), v)
+                            } else {
+                                c.reach_behind(command, v, u)
+                            };
                             if d > 0.0 { reach / d } else { f64::INFINITY }
                         };
                         Some(Ratios {

@@ -856,3 +856,38 @@ fn slow_credits_one_standard_error_and_stop_two() {
         (v - 3.0, v - 1.5)
     );
 }
+
+#[test]
+fn one_only_predicted_to_walk_in_is_stopped_for_at_the_latest_moment_and_slowed_for_as_any() {
+    let c = DecisionConfig::default();
+    let d = Decider::new(c).expect("valid");
+    // At 30 km/h: STOP's reach 14.85 m; at max_decel (9 m/s^2) 4.17 + 3.86 + 2 = 10.02 m.
+    let late = c.reach_at(c.max_decel, KMH30);
+    assert!((late - 10.0247).abs() < 1e-3, "{late}");
+    let entering = |at: f64| DecisionInput {
+        obstacle_entering: true,
+        ..DecisionInput::at_speed(Some(at), KMH30)
+    };
+    let standing = |at: f64| DecisionInput::at_speed(Some(at), KMH30);
+    // Between the two reaches: a STOP for one in the corridor, a SLOW for one who may enter.
+    assert_eq!(d.level(&standing(12.0)), Stop);
+    assert_eq!(d.level(&entering(12.0)), Slow);
+    // Within the latest moment: a STOP either way, and what the distance needs is asked.
+    assert_eq!(d.level(&entering(9.9)), Stop);
+    let asked = d
+        .clone()
+        .update(entering(9.9), Duration::ZERO)
+        .requested_decel;
+    assert!(asked > c.stop_decel, "{asked}");
+    // SLOW's reach is the same for both.
+    assert_eq!(d.level(&entering(29.0)), Slow);
+    assert_eq!(d.level(&entering(29.5)), Clear);
+    // The worst of two snapshots is only entering when both obstacles are.
+    assert!(entering(12.0).worst(entering(14.0)).obstacle_entering);
+    assert!(!entering(12.0).worst(standing(14.0)).obstacle_entering);
+    assert!(
+        entering(12.0)
+            .worst(DecisionInput::at_speed(None, KMH30))
+            .obstacle_entering
+    );
+}

@@ -515,7 +515,24 @@ impl Perception {
             // The flies look around what was seen in the corridor; a scene without a road
             // (a dataset) has no corridor to look at.
             if self.engine.params().roi.is_some() {
-                self.engine.set_focus(self.finder.unique_pixels());
+                if self.watch.is_empty() {
+                    self.engine.set_focus(self.finder.unique_pixels());
+                } else {
+                    // Half the focus around what the corridor saw, the rest around what
+                    // each band watched beside it saw on its latest frame: the flies find a
+                    // parked car's inner side and a pedestrian sooner (docs/traffic.md).
+                    let share = crate::engine::MAX_FOCUS / (2 * self.watch.len());
+                    let beside = self
+                        .watch
+                        .iter()
+                        .flat_map(|w| w.finder.unique_pixels().take(share));
+                    self.engine.set_focus(
+                        self.finder
+                            .unique_pixels()
+                            .take(crate::engine::MAX_FOCUS / 2)
+                            .chain(beside),
+                    );
+                }
             }
             let tracked = self.tracker.update(frame.id, seen);
             // Beside the corridor, once a frame: who may step into it.

@@ -122,6 +122,7 @@ impl Tracked {
         DecisionInput {
             obstacle_speed: self.decision_speed(),
             obstacle_speed_slow: self.slow_speed(),
+            obstacle_entering: self.confirmed().is_some() && self.entering.is_some(),
             ..input
         }
     }

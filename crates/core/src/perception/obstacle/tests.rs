@@ -322,3 +322,32 @@ fn a_car_whose_flies_pile_on_one_edge_is_as_wide_as_its_cells() {
     assert_eq!(cluster(&u, &c), Some((0..20).collect()));
     assert_eq!(cluster(&u[..14], &c), None);
 }
+
+#[test]
+fn beside_the_corridor_an_obstacle_is_where_its_inner_edge_is() {
+    // A car parked right of the path, its inner side 2.25 m off it: a few flies on that side,
+    // most on its rear face out to the band's edge at 3 m (hw-mock's between-parked-cars).
+    let xs = [
+        2.25, 2.26, 2.9, 2.95, 2.6, 2.8, 2.85, 2.7, 2.9, 2.75, 2.98, 2.88,
+    ];
+    let mut car = flies(&[10.0; 12]);
+    for (u, x) in car.iter_mut().zip(xs) {
+        u.x = x;
+    }
+    let mut scratch = Vec::new();
+    // The decile nearest the path: its inner side, where the quartile read 2.6 m.
+    assert_eq!(
+        across(&car, Some((1.2, 3.0)), &mut scratch),
+        f64::from(2.26f32)
+    );
+    // The same car left of the path.
+    for u in &mut car {
+        u.x = -u.x;
+    }
+    assert_eq!(
+        across(&car, Some((-3.0, -1.2)), &mut scratch),
+        f64::from(-2.26f32)
+    );
+    // In the corridor: the median.
+    assert_eq!(across(&car, None, &mut scratch), f64::from(-2.8f32));
+}
