@@ -37,7 +37,7 @@
 //! Off by default (`watch_half_width = 0`): with 4 m, hw-mock's crossing pedestrians are
 //! stopped for (18 of 18 runs, seeds 1-2), but cars parked 18-21 m ahead beside the lane, where
 //! the mock rig places their inner edge anywhere within a metre from frame to frame, still
-//! bring a SLOW on one run in five (docs/traffic.md). Nothing here runs then, and the decision
+//! bring a SLOW on 2 of 22 false-activation runs (docs/traffic.md). Nothing here runs then, and the decision
 //! is the corridor's alone.
 
 use super::motion::{MIN_SAMPLES, MIN_SPAN};
