@@ -1663,16 +1663,41 @@ fn systemd_runs_the_package_restarts_flyd_on_a_missed_watchdog_and_upgrades_and_
     let (restart_frame, _) = r.event("restarted");
     let (_, again) = r.event("running-again");
     let (_, sigterm) = r.event("sigterm");
-    // Frozen, flyd sends nothing: from just after SIGSTOP until the watchdog (2 s) could
-    // have fired, not one frame.
+    // Frozen, flyd sends nothing: from just after the kill until the watchdog (2 s after the
+    // last ping, which came before the kill) could have fired, not one frame. The kill's own
+    // realtime stamps, not the feeder's latest frame (which may be long before it).
+    let stamps = r.run.result("sigstop");
+    let stamp = |k: &str| -> f64 {
+        stamps[k]
+            .parse()
+            .unwrap_or_else(|e| panic!("sigstop {k}={:?}: {e}", stamps[k]))
+    };
+    let (stop_before, stop_after) = (stamp("before"), stamp("after"));
+    assert!(
+        stop_before >= sigstop && stop_after >= stop_before && stop_after - stop_before < 1.0,
+        "the kill's stamps {stop_before}..{stop_after}, the feeder's frame before it {sigstop}"
+    );
     let during_stop = r
         .frames
         .iter()
         .filter(|f| {
-            f.message.starts_with("FLYD_") && f.time > sigstop + 0.5 && f.time < sigstop + 2.0
+            f.message.starts_with("FLYD_")
+                && f.time > stop_after + 0.5
+                && f.time < stop_before + 2.0
         })
         .count();
     assert_eq!(during_stop, 0, "frames from a SIGSTOPped flyd");
+    let before_stop = r
+        .frames
+        .iter()
+        .filter(|f| {
+            f.message.starts_with("FLYD_") && f.time > stop_before - 1.0 && f.time < stop_before
+        })
+        .count();
+    assert!(
+        before_stop > 20,
+        "{before_stop} flyd frames in the second before the kill: the window above would prove nothing"
+    );
     let resumed = commands
         .iter()
         .filter(|f| f.time >= again && f.time < sigterm)

@@ -100,7 +100,13 @@ systemd-analyze security --no-pager flyd >"$RESULTS/security.txt" 2>&1
 pid="$(main_pid)"
 before="$(restarts)"
 flyd_event sigstop
+# The feeder's latest frame can be well before the kill on a loaded host (CI saw 0.5 s): the
+# kill itself is stamped with the realtime clock (coreutils date in this guest), the same
+# clock as candump's and the feeder's.
+stop_before="$(date +%s.%N)"
 kill -STOP "$pid"
+stop_after="$(date +%s.%N)"
+vm_result sigstop "before=$stop_before" "after=$stop_after"
 restarted() {
     [ "$(restarts)" -gt "$before" ] && [ "$(main_pid)" != 0 ] && [ "$(main_pid)" != "$pid" ] \
         && [ "$(systemctl is-active flyd)" = active ]
