@@ -348,9 +348,13 @@ pub struct DecisionInput {
     /// that is higher.
     pub obstacle_speed_slow: f64,
     /// The obstacle stands beside the corridor and is only predicted to walk into it
-    /// ([`crate::perception::crossing`]): STOP is asked at the latest moment the brakes still
-    /// stop short of it, its reach at `max_decel` (SLOW as for any obstacle). Someone who
-    /// walks towards the road and stops at its kerb is then braked for gently, if at all.
+    /// ([`crate::perception::crossing`]): a prediction is acted on a stage later than an
+    /// obstacle in the path. SLOW where one in the path would be STOPped for (within the
+    /// reach of `stop_decel`), STOP at the latest moment the brakes still stop short of it
+    /// (its reach at `max_decel`). Someone who walks towards the road and stops at its kerb
+    /// is then braked for gently, if at all; a car parked beside the lane whose inner edge
+    /// the flies read 18 m ahead as moving in (hw-mock, 30 km/h) is not slowed for, where
+    /// SLOW's own reach (29.3 m) took it.
     pub obstacle_entering: bool,
     /// The vehicle's speed, m/s (`obstacle` mode; NaN or negative is a fault there).
     pub speed: f64,
@@ -626,10 +630,12 @@ impl Decider {
                         let ratio = |command| {
                             let u = input.credited_for(command);
                             let d = d - (v - u) * latency;
-                            let reach = if command == Command::Stop && input.obstacle_entering {
-                                c.reach_at(c.max_decel.max(c.stop_decel), v)
-                            } else {
-                                c.reach_behind(command, v, u)
+                            let reach = match (command, input.obstacle_entering) {
+                                (Command::Stop, true) => {
+                                    c.reach_at(c.max_decel.max(c.stop_decel), v)
+                                }
+                                (_, true) => c.reach_behind(Command::Stop, v, u),
+                                _ => c.reach_behind(command, v, u),
                             };
                             if d > 0.0 { reach / d } else { f64::INFINITY }
                         };

@@ -858,7 +858,7 @@ fn slow_credits_one_standard_error_and_stop_two() {
 }
 
 #[test]
-fn one_only_predicted_to_walk_in_is_stopped_for_at_the_latest_moment_and_slowed_for_as_any() {
+fn one_only_predicted_to_walk_in_is_acted_on_a_stage_later_than_one_in_the_path() {
     let c = DecisionConfig::default();
     let d = Decider::new(c).expect("valid");
     // At 30 km/h: STOP's reach 14.85 m; at max_decel (9 m/s^2) 4.17 + 3.86 + 2 = 10.02 m.
@@ -879,9 +879,11 @@ fn one_only_predicted_to_walk_in_is_stopped_for_at_the_latest_moment_and_slowed_
         .update(entering(9.9), Duration::ZERO)
         .requested_decel;
     assert!(asked > c.stop_decel, "{asked}");
-    // SLOW's reach is the same for both.
-    assert_eq!(d.level(&entering(29.0)), Slow);
-    assert_eq!(d.level(&entering(29.5)), Clear);
+    // SLOW where one in the path would be STOPped for: within 14.85 m, not beyond.
+    assert_eq!(d.level(&standing(29.0)), Slow);
+    assert_eq!(d.level(&entering(14.7)), Slow);
+    assert_eq!(d.level(&entering(15.0)), Clear);
+    assert_eq!(d.level(&entering(29.0)), Clear);
     // The worst of two snapshots is only entering when both obstacles are.
     assert!(entering(12.0).worst(entering(14.0)).obstacle_entering);
     assert!(!entering(12.0).worst(standing(14.0)).obstacle_entering);

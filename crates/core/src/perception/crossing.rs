@@ -16,13 +16,21 @@
 //! CPNA/CPFA runs, seed 1) and
 //! surely towards the corridor (its speed across less [`CREDIT_SIGMAS`] standard errors is at
 //! least [`MIN_TOWARDS`]: a parked car, a post, a pedestrian walking along the kerb never
-//! enter); it is
+//! enter), and nearer the path than it ever was before the last
+//! [`super::motion::PROGRESS_S`] seconds (but once: [`super::motion::ObstacleMotion::closest_before`]).
+//! The last because a watched obstacle's inner edge is read from the flies on it, which miss
+//! that edge more often than they stray nearer the path than it: the readings of a parked
+//! car stray outwards and come back, and the fit of a stray and its return reads as walking
+//! in. On hw-mock's car parked on a 60 m bend, its near side 1.7 m off the path, they read
+//! 2.3-2.4 m for 0.3 s, then 1.65-1.7 m again 8 m ahead: 1.6 m/s towards the path, a STOP at
+//! 9 m/s^2 (`bend-parked-car-outside`, seed 1). Someone who walks in comes nearer on every
+//! frame; it is
 //! predicted to reach the corridor's edge after `gap / (speed + 2 sigma)` seconds, the earliest
 //! its motion allows. It is **in the path** ([`in_path`]) when that is before the vehicle, at
 //! its speed, has passed it: its arrival at the obstacle's near distance plus
 //! [`PASSING_S`]. Then the decision takes it at its near distance, with the speed along the
-//! path its track shows, SLOW as for an obstacle in the corridor and STOP at the latest moment
-//! the brakes still stop short of it
+//! path its track shows, a stage later than an obstacle in the corridor: SLOW where that one
+//! would be STOPped for, and STOP at the latest moment the brakes still stop short of it
 //! ([`crate::decision::DecisionInput::obstacle_entering`]: its reach at `max_decel`) (Euro
 //! NCAP's AEB systems brake for a pedestrian on a collision course before they enter the
 //! path; Autoware's AEB checks each object's predicted path against the ego's).
@@ -83,7 +91,9 @@ pub fn entry(watched: &Tracked, half_width: f64) -> Option<f64> {
     let spread = CREDIT_SIGMAS * m.lateral_sigma;
     // NaN speeds fail this too.
     let surely_towards = towards - spread >= MIN_TOWARDS;
-    if !surely_towards {
+    // And nearer the path than it was before (NaN fails).
+    let nearer = o.lateral.abs() < m.closest_before;
+    if !(surely_towards && nearer) {
         return None;
     }
     let gap = (o.lateral.abs() - half_width).max(0.0);
@@ -155,6 +165,7 @@ mod tests {
                 samples: 16,
                 span: 0.5,
                 established: true,
+                closest_before: f64::INFINITY,
             }),
             entering: None,
         }
@@ -175,6 +186,19 @@ mod tests {
         assert_eq!(entry(&watched(16.7, 3.2, -0.3, 0.2), 1.2), None);
         // A parked car's flies drifting towards the path as more of its side shows.
         assert_eq!(entry(&watched(9.8, -2.3, 0.85, 0.2), 1.2), None);
+        // Back where it was 0.25 s ago or nearer before (a parked car's inner edge read
+        // farther out on a few frames): not entering.
+        let mut back = watched(16.7, 3.2, -1.39, 0.2);
+        back.motion = back.motion.map(|m| ObstacleMotion {
+            closest_before: 3.2,
+            ..m
+        });
+        assert_eq!(entry(&back, 1.2), None);
+        back.motion = back.motion.map(|m| ObstacleMotion {
+            closest_before: 3.3,
+            ..m
+        });
+        assert!(entry(&back, 1.2).is_some());
         // A motion across not established, a track not confirmed: never.
         let mut few = watched(16.7, 3.2, -1.39, 0.2);
         few.motion = few.motion.map(|m| ObstacleMotion { samples: 5, ..m });

@@ -161,6 +161,7 @@ mod tests {
             samples: 12,
             span: 0.4,
             established,
+            closest_before: f64::INFINITY,
         })
     }
 
