@@ -471,11 +471,11 @@ fn log_resolution(config: &DaemonConfig, rig: &flyd_core::geometry::StereoRig) {
     macro_rules! resolution {
         ($level:ident, $message:expr) => {
             tracing::$level!(
-                speed_kmh = r.speed * 3.6,
-                slow_distance_m = r.slow_distance,
-                depth_error_per_px_m = r.error_per_pixel,
-                margin_m = r.margin,
-                resolved_m = r.resolved,
+                speed_kmh = crate::logging::shown(r.speed * 3.6, 1),
+                slow_distance_m = crate::logging::shown(r.slow_distance, 2),
+                depth_error_per_px_m = crate::logging::shown(r.error_per_pixel, 2),
+                margin_m = crate::logging::shown(r.margin, 2),
+                resolved_m = crate::logging::shown(r.resolved, 2),
                 $message
             )
         };

@@ -142,8 +142,6 @@ pub enum Output {
     Human,
 }
 
-/// What `format` means for `target`: auto is the journal on the journal's stream, JSON off a
-/// terminal, human text on one.
 /// `value` rounded to `decimals` places, for a log field: a figure a person reads
 /// (`speed_kmh=30`, not `30.000000000000004`, a km/h worked out from m/s).
 pub fn shown(value: f64, decimals: i32) -> f64 {
@@ -155,6 +153,8 @@ pub fn shown(value: f64, decimals: i32) -> f64 {
     }
 }
 
+/// What `format` means for `target`: auto is the journal on the journal's stream, JSON off a
+/// terminal, human text on one.
 pub fn output(format: LogFormat, target: LogTarget) -> Output {
     match format {
         LogFormat::Journal => Output::Journal,

@@ -48,6 +48,7 @@ use super::notify::ServiceNotifier;
 use super::ring::RingCounters;
 use super::snapshot::Snapshot;
 use super::stats::{RateMeter, SampleWindow};
+use crate::logging::shown;
 use crate::os_clock::SharedClock;
 use crate::record::Observed;
 use crate::record::topics::{InputFrom, StatsEvent};
@@ -498,15 +499,17 @@ impl<B: CanBus> ControlThread<B> {
             global_warning = latest.map_or(f64::NAN, |l| l.global_warning),
             matched = latest.map_or(f64::NAN, |l| l.matched),
             perception_age_ms = latest.map(|l| ms(self.clock.now().saturating_sub(l.capture_time()))),
-            obstacle_m = latest.and_then(|l| l.tracked.obstacle).map(|o| o.distance),
+            obstacle_m = latest
+                .and_then(|l| l.tracked.obstacle)
+                .map(|o| shown(o.distance, 2)),
             obstacle_confirmed = latest.is_some_and(|l| l.tracked.confirmed),
             obstacle_flies = latest.and_then(|l| l.tracked.obstacle).map(|o| o.flies),
             corridor_unique = latest.map(|l| l.corridor.unique),
             road = %latest.map_or(RoadSource::Prior, |l| l.road.source),
-            road_height_m = latest.map(|l| l.road.plane.height),
-            road_pitch_deg = latest.map(|l| l.road.plane.pitch_deg()),
-            road_roll_deg = latest.map(|l| l.road.plane.roll_deg()),
-            speed_kmh = self.speed(self.clock.now()) * 3.6,
+            road_height_m = latest.map(|l| shown(l.road.plane.height, 3)),
+            road_pitch_deg = latest.map(|l| shown(l.road.plane.pitch_deg(), 2)),
+            road_roll_deg = latest.map(|l| shown(l.road.plane.roll_deg(), 2)),
+            speed_kmh = shown(self.speed(self.clock.now()) * 3.6, 2),
             motion = self.motion_label(s),
             motion_accepted = s.report.motion_accepted,
             motion_rejected = s.report.motion_rejected,

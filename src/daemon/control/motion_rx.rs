@@ -106,15 +106,15 @@ impl<B: CanBus> ControlThread<B> {
             if beyond {
                 tracing::warn!(
                     speed_kmh = crate::logging::shown(speed * 3.6, 2),
-                    slow_distance_m = reach,
-                    range_m = self.range,
+                    slow_distance_m = crate::logging::shown(reach, 2),
+                    range_m = crate::logging::shown(self.range, 2),
                     "speed beyond what flyd sees in time: the SLOW distance exceeds the farthest \
                      the rig searches for obstacles (vehicle.assumed_speed_kmh is the highest \
                      speed the configuration was checked for)"
                 );
             } else {
                 tracing::info!(
-                    speed_kmh = speed * 3.6,
+                    speed_kmh = crate::logging::shown(speed * 3.6, 2),
                     "speed within the range searched again"
                 );
             }
