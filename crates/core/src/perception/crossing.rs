@@ -43,11 +43,12 @@
 //! after it: the two cannot be told apart in time.
 //!
 //! Off by default (`watch_half_width = 0`): with 4 m, hw-mock's crossing pedestrians are
-//! stopped for (18 of 18 runs, seeds 1-2) and nothing is braked for on its 22
-//! false-activation runs, but the flies the zones draw beside the corridor sit on a real
-//! roadside's repeated textures, and the 250 fittest flies of a KITTI pair agree less with its
-//! LiDAR truth (78.5 % within 1 px against 88.1 % on one pair; docs/traffic.md). Nothing here
-//! runs then, and the decision is the corridor's alone.
+//! stopped for (18 of 18 runs, seeds 1-2) and nothing watched is braked for on its
+//! false-activation runs (44 of seeds 1-4), but the flies the zones draw beside the corridor
+//! sit on a real roadside's repeated textures: the 250 fittest flies of a KITTI pair agree
+//! less with its LiDAR truth (78.5 % within 1 px against 88.1 % on one pair), and those at
+//! the corridor's edge brought two STOPs on hw-mock's empty road and steel plate
+//! (docs/traffic.md). Nothing here runs then, and the decision is the corridor's alone.
 
 use super::motion::{MIN_SAMPLES, MIN_SPAN};
 
