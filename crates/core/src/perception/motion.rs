@@ -418,6 +418,18 @@ mod tests {
         assert!(history(2, 8.0, 0.0, 0.0).motion().is_none());
     }
 
+    /// Sightings at 30 fps of an obstacle approached at 8.3 m/s from `along` metres, its
+    /// lateral offsets `offsets`.
+    fn approached(along: f64, offsets: &[f64]) -> History {
+        offsets
+            .iter()
+            .enumerate()
+            .fold(History::default(), |h, (k, &l)| {
+                let t = k as f64 / 30.0;
+                h.with(t, along - 8.3 * t, l, DEPTH_FLOOR)
+            })
+    }
+
     #[test]
     fn a_few_sightings_off_the_inner_edge_are_no_motion_across() {
         // A car parked 2.25 m left of the path (hw-mock's between-parked-cars, seed 2): its
@@ -426,13 +438,7 @@ mod tests {
             -2.33, -2.91, -2.91, -2.91, -2.25, -2.33, -2.37, -2.32, -2.28, -2.27, -2.33, -2.31,
             -2.25, -2.23, -2.20, -2.26,
         ];
-        let h = offsets
-            .iter()
-            .enumerate()
-            .fold(History::default(), |h, (k, &l)| {
-                let t = k as f64 / 30.0;
-                h.with(t, 12.0 - 8.3 * t, l, DEPTH_FLOOR)
-            });
+        let h = approached(12.0, &offsets);
         let m = h.motion().expect("a motion");
         // Least squares: 1.04 m/s towards the path; the median slope, 0.43, is the inner
         // edge's own drift as the flies settle on it, and not surely towards the path.
@@ -464,13 +470,7 @@ mod tests {
             1.708, 1.74, 1.68, 1.72, 2.379, 2.371, 1.835, 1.937, 2.392, 2.398, 2.265, 2.337, 2.118,
             2.407, 1.681, 1.575, 2.245, 1.723, 1.680, 1.908, 1.653, 1.674, 1.651, 1.697,
         ];
-        let h = offsets
-            .iter()
-            .enumerate()
-            .fold(History::default(), |h, (k, &l)| {
-                let t = k as f64 / 30.0;
-                h.with(t, 20.0 - 8.3 * t, l, DEPTH_FLOOR)
-            });
+        let h = approached(20.0, &offsets);
         let m = h.motion().expect("a motion");
         // The fit reads it walking in, surely...
         assert!(m.lateral_speed + 2.0 * m.lateral_sigma < -0.5, "{m:?}");
