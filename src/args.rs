@@ -122,6 +122,11 @@ pub(crate) struct ReplayArgs {
     /// Seed of the random generator (default: the configuration's).
     #[arg(long)]
     pub(crate) seed: Option<u64>,
+    /// Turn the calibration's right camera by this many degrees (its yaw_deg: positive
+    /// right) before replaying, the images unchanged: what a knocked camera or a wrong
+    /// calibration shows flyd (the summary's `columns` says whether the motion finds it).
+    #[arg(long, value_name = "DEG", allow_negative_numbers = true)]
+    pub(crate) right_yaw_error: Option<f64>,
     /// A hw-mock scenario instead of a stereo pair: empty-road, pedestrian-4m,
     /// pedestrian-steps-in, car-approaching, driving, driving-to-pedestrian, drive-30, drive-40,
     /// drive-30-to-pedestrian, drive-40-to-pedestrian, drive-30-lane-change, bend-30,

@@ -138,10 +138,15 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         speed_kmh: args.speed,
         generations: args.generations,
         generations_per_frame: args.generations_per_frame,
+        right_yaw_error_deg: args.right_yaw_error,
     };
     let prepared = request.prepare(&config).context("replay")?;
     let record = args.record.as_deref();
     let declared_height = prepared.feed.rig().left.centre().y;
+    let (focal, baseline) = (
+        prepared.feed.rig().right.intrinsics().fx,
+        prepared.feed.rig().baseline(),
+    );
     let summary =
         replay::command::replay_to(prepared, &config, &out, record, args.config.as_deref())
             .context("replay")?;
@@ -149,6 +154,9 @@ fn replay_command(args: ReplayArgs) -> Result<()> {
         eprintln!("flyd replay: note: {note}");
     }
     for warning in summary.mount_warnings(declared_height) {
+        eprintln!("flyd replay: warning: {warning}");
+    }
+    if let Some(warning) = summary.columns_warning(focal, baseline) {
         eprintln!("flyd replay: warning: {warning}");
     }
     say!("{}", serde_json::to_string_pretty(&summary)?)?;

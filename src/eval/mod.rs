@@ -104,6 +104,7 @@ fn request(item: &Item, data: &Path, rig: Option<&Path>, seed: u64) -> Request {
         speed_kmh: item.speed_kmh,
         generations: None,
         generations_per_frame: None,
+        right_yaw_error_deg: None,
     }
 }
 

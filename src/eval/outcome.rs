@@ -44,6 +44,10 @@ pub struct Outcome {
     /// The declared mount against the road measured (none: the run did not finish).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mount: Option<flyd_core::perception::mount_check::MountReport>,
+    /// The right camera's yaw against the motion, on a sequence
+    /// ([`flyd_core::rectification::yaw`]; none: not checked, or the run did not finish).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub columns: Option<flyd_core::rectification::yaw::ColumnReport>,
     /// Against the item's `truth`, when it has one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<Accuracy>,
@@ -167,6 +171,7 @@ impl Outcome {
             stop_after: summary.reaction.and_then(|r| r.stop_command_after),
             closed_loop: run.closed_loop.clone(),
             mount: Some(summary.mount),
+            columns: summary.columns,
             ..Self::default()
         };
         for r in run.trace.iter().filter(perception_alarm) {

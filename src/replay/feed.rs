@@ -66,6 +66,81 @@ pub trait FrameFeed {
     }
 }
 
+/// A feed whose calibration's right camera is turned by a yaw, its images unchanged: what a
+/// knocked camera, or a calibration gone wrong, shows flyd (`flyd replay --right-yaw-error`).
+pub struct Miscalibrated {
+    inner: Box<dyn FrameFeed>,
+    rig: StereoRig,
+}
+
+impl Miscalibrated {
+    /// `inner` with its right camera turned right by `yaw_deg` degrees.
+    pub fn new(inner: Box<dyn FrameFeed>, yaw_deg: f64) -> Result<Self, ReplayError> {
+        if !(yaw_deg.is_finite() && yaw_deg.abs() <= 10.0) {
+            return Err(ReplayError::Usage(format!(
+                "right yaw error {yaw_deg} degrees: must be within -10..=10"
+            )));
+        }
+        let mut rig = inner.rig().clone();
+        let r = &rig.right;
+        let turn = flyd_core::geometry::rotation_from_angles(0.0, yaw_deg, 0.0);
+        rig.right = flyd_core::geometry::Camera::new(
+            r.width(),
+            r.height(),
+            *r.intrinsics(),
+            *r.distortion(),
+            turn * r.rotation().matrix(),
+            r.centre(),
+        )
+        .map_err(|e| ReplayError::Usage(format!("right yaw error {yaw_deg} degrees: {e}")))?;
+        Ok(Self { inner, rig })
+    }
+}
+
+impl FrameFeed for Miscalibrated {
+    fn rig(&self) -> &StereoRig {
+        &self.rig
+    }
+    fn frames(&self) -> u64 {
+        self.inner.frames()
+    }
+    fn load(
+        &mut self,
+        index: u64,
+        frame: &mut StereoFrame,
+        left: &mut RgbImage,
+    ) -> Result<(), ReplayError> {
+        self.inner.load(index, frame, left)
+    }
+    fn first_obstacle(&self) -> Option<u64> {
+        self.inner.first_obstacle()
+    }
+    fn still(&self) -> bool {
+        self.inner.still()
+    }
+    fn frame_name(&self, index: u64) -> String {
+        self.inner.frame_name(index)
+    }
+    fn motion(&self, index: u64) -> Option<VehicleMotion> {
+        self.inner.motion(index)
+    }
+    fn motion_source(&self) -> Option<String> {
+        self.inner.motion_source()
+    }
+    fn obey(&mut self, time: Duration, decision: &Decision) {
+        self.inner.obey(time, decision);
+    }
+    fn tracked(&mut self, time: Duration, tracked: &flyd_core::perception::Tracked) {
+        self.inner.tracked(time, tracked);
+    }
+    fn finished(&self) -> bool {
+        self.inner.finished()
+    }
+    fn closed_loop(&self) -> Option<super::closed_loop::ClosedLoopReport> {
+        self.inner.closed_loop()
+    }
+}
+
 /// One stereo pair, evaluated again and again (the paper's setting): one frame, or the same
 /// images as several frames ([`PairFeed::repeated`]), as a still camera films a still scene.
 pub struct PairFeed {

@@ -61,6 +61,9 @@ pub struct Request {
     pub generations: Option<u64>,
     /// Generations per frame (default: see [`Request::prepare`]).
     pub generations_per_frame: Option<u64>,
+    /// Turn the calibration's right camera by this many degrees, the images unchanged
+    /// ([`super::feed::Miscalibrated`]).
+    pub right_yaw_error_deg: Option<f64>,
 }
 
 /// A feed and the settings to replay it with.
@@ -79,6 +82,7 @@ impl Request {
             speed_kmh: None,
             generations: None,
             generations_per_frame: None,
+            right_yaw_error_deg: None,
         }
     }
 
@@ -205,6 +209,10 @@ impl Request {
                     (Box::new(feed), generations, per_frame, PAIR_FPS)
                 }
             };
+        let feed: Box<dyn FrameFeed> = match self.right_yaw_error_deg {
+            Some(deg) => Box::new(super::feed::Miscalibrated::new(feed, deg)?),
+            None => feed,
+        };
         let settings = Settings {
             record: None,
             params,
@@ -223,6 +231,10 @@ impl Request {
             right_row_shift,
             measure_rows,
             mount_assumed,
+            // The yaw check on real drives, and wherever a yaw error is put in; hw-mock's rigs
+            // are the truth, and the check costs a tenth of a second a metre driven.
+            check_columns: self.right_yaw_error_deg.is_some()
+                || matches!(self.source, Source::Sequence { .. }),
         };
         Ok(Prepared { feed, settings })
     }

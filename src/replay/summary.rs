@@ -6,6 +6,7 @@ use std::time::Duration;
 use flyd_core::decision::{Command, CommandReason};
 use flyd_core::perception::mount_check::{MountCheck, MountReport};
 use flyd_core::perception::{Obstacle, RoadEstimate};
+use flyd_core::rectification::yaw::{ColumnReport, ColumnVerdict};
 use serde::Serialize;
 
 use super::{Replay, TraceRow};
@@ -179,6 +180,10 @@ pub struct Summary {
     /// What was assumed of the mount, when the calibration gives none.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mount_assumed: Option<&'static str>,
+    /// The right camera's yaw against the motion, when checked (a sequence, or a yaw error
+    /// put in: [`flyd_core::rectification::yaw`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub columns: Option<ColumnReport>,
     /// A closed loop's outcome: contact, gap, braking ([`super::closed_loop`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<super::closed_loop::ClosedLoopReport>,
@@ -223,6 +228,25 @@ impl Summary {
             }
             None => m.advice(declared_height).into_iter().collect(),
         }
+    }
+
+    /// What a person must be told of the right camera's yaw on stderr, when the motion says
+    /// the calibration is off ([`ColumnReport`]), for a rig of focal length `focal_px` and
+    /// `baseline` metres.
+    pub fn columns_warning(&self, focal_px: f64, baseline: f64) -> Option<String> {
+        let c = self.columns.as_ref()?;
+        (c.verdict == ColumnVerdict::Disagrees).then(|| {
+            // A disparity offset of -offset: a point at z seen at z f B / (f B - z offset).
+            let (z, fb) = (20.0, focal_px * baseline);
+            let seen = z * fb / (fb - z * c.offset_px);
+            format!(
+                "the right camera's yaw disagrees with the vehicle's motion over {} pairs of \
+                 frames: the right image shows points {:+.2} px (+/- {:.2}) from where the \
+                 calibration puts them, so a point 20 m ahead is measured at {:.1} m; turn the \
+                 right camera by {:+.3} degrees in the calibration (a rig file's [right] yaw_deg)",
+                c.pairs, c.offset_px, c.offset_sigma_px, seen, c.right_yaw_deg
+            )
+        })
     }
 
     /// The summary of `replay`, written to `out`.
@@ -314,6 +338,7 @@ impl Summary {
                 check.report()
             },
             mount_assumed: replay.settings.mount_assumed,
+            columns: replay.columns,
             per_frame,
         }
     }

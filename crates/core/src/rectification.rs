@@ -22,6 +22,8 @@
 use crate::frame::{BPP, PreparedImage, StereoFrame};
 use crate::geometry::StereoRig;
 
+pub mod yaw;
+
 /// Half the window side, pixels (7 x 7 windows, as the fitness's).
 const R: i32 = 3;
 /// Offsets tried, both ways, pixels: -1.5..=1.5 by 0.25.
@@ -248,17 +250,39 @@ fn disparity(
 /// and that of `right` centred on `(u, v)`, bilinearly interpolated. The caller keeps both
 /// windows (and the interpolation's next pixel) inside the images.
 fn ssd(left: &PreparedImage, x: i32, y: i32, right: &PreparedImage, u: f32, v: f32) -> f64 {
-    let (u0, v0) = (u.floor(), v.floor());
-    let (a, b) = (u - u0, v - v0);
-    let w = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
+    scaled_ssd(left, x, y, right, u, v, 1.0, 1.0)
+}
+
+/// [`ssd`] with the second window magnified `mx` times across and `my` times down: the sum of
+/// squared differences between the 7 x 7 window of `left` at `(x, y)` and `right` read
+/// bilinearly at `(u + mx i, v + my j)`. The caller keeps both (and the next pixel) inside the
+/// images' padding.
+#[allow(clippy::too_many_arguments)]
+fn scaled_ssd(
+    left: &PreparedImage,
+    x: i32,
+    y: i32,
+    right: &PreparedImage,
+    u: f32,
+    v: f32,
+    mx: f32,
+    my: f32,
+) -> f64 {
     let (ld, rd) = (left.data(), right.data());
     let channels = usize::from(left.channels().min(right.channels()));
     let rs = right.stride();
     let mut sum = 0f64;
     for j in -R..=R {
+        let vv = v + my * j as f32;
+        let v0 = vv.floor();
+        let b = vv - v0;
         for i in -R..=R {
+            let uu = u + mx * i as f32;
+            let u0 = uu.floor();
+            let a = uu - u0;
+            let w = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
             let lo = left.offset((x + i) as isize, (y + j) as isize);
-            let ro = right.offset((u0 as i32 + i) as isize, (v0 as i32 + j) as isize);
+            let ro = right.offset(u0 as isize, v0 as isize);
             for c in 0..channels {
                 let r = w[0] * f32::from(rd[ro + c])
                     + w[1] * f32::from(rd[ro + BPP + c])
