@@ -22,6 +22,15 @@ fn flyd(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// Runs `flyd ARGS`, asserts that it succeeded, and returns the JSON summary it printed and
+/// its stderr (what a replay warns of).
+fn summary_and_stderr(args: &[&str]) -> (serde_json::Value, String) {
+    let (ok, stdout, stderr) = flyd(args);
+    assert!(ok, "{stderr}");
+    let summary = serde_json::from_str(&stdout).expect("summary JSON");
+    (summary, stderr)
+}
+
 fn repo(path: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join(path)
@@ -1267,7 +1276,7 @@ fn a_replay_says_what_it_assumed_of_the_mount_and_where_the_road_disagrees() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("out").display().to_string();
     let replay = |calib: &str| {
-        let (ok, stdout, stderr) = flyd(&[
+        summary_and_stderr(&[
             "replay",
             "--left",
             &format!("{pair}/im0.png"),
@@ -1279,10 +1288,7 @@ fn a_replay_says_what_it_assumed_of_the_mount_and_where_the_road_disagrees() {
             "60",
             "--out",
             &out,
-        ]);
-        assert!(ok, "{stderr}");
-        let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary JSON");
-        (summary, stderr)
+        ])
     };
     let (summary, stderr) = replay(&format!("{pair}/calib.txt"));
     assert!(
@@ -1340,7 +1346,7 @@ fn a_right_camera_turned_in_the_calibration_is_found_by_the_motion() {
     .expect("write");
     let out = dir.path().join("out").display().to_string();
     let replay = |error: &str| {
-        let (ok, stdout, stderr) = flyd(&[
+        let (summary, stderr) = summary_and_stderr(&[
             "replay",
             "--sequence",
             &drive,
@@ -1353,8 +1359,6 @@ fn a_right_camera_turned_in_the_calibration_is_found_by_the_motion() {
             "--out",
             &out,
         ]);
-        assert!(ok, "{stderr}");
-        let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary JSON");
         (summary["columns"].clone(), stderr)
     };
     // 19 pairs of this drive measure the calibration as given to +0.9 +- 0.3 px (its 50
@@ -1377,7 +1381,7 @@ fn a_right_camera_turned_in_the_calibration_is_found_by_the_motion() {
     );
     // One pair, no motion: nothing measured, nothing said.
     let pair = repo("tests/fixtures/kitti/kitti2015_train_000000");
-    let (ok, stdout, stderr) = flyd(&[
+    let (summary, stderr) = summary_and_stderr(&[
         "replay",
         "--left",
         &format!("{pair}/im0.png"),
@@ -1392,8 +1396,6 @@ fn a_right_camera_turned_in_the_calibration_is_found_by_the_motion() {
         "--out",
         &out,
     ]);
-    assert!(ok, "{stderr}");
-    let summary: serde_json::Value = serde_json::from_str(&stdout).expect("summary JSON");
     assert_eq!(summary["columns"]["verdict"], "UNMEASURED", "{summary}");
     assert_eq!(summary["columns"]["pairs"], 0, "{summary}");
     assert!(!stderr.contains("yaw"), "{stderr}");
